@@ -1,0 +1,47 @@
+//! `jointloc`: real-time visual localisation for planetary UAVs (JointLoc, IROS 2024).
+//!
+//! One subcommand per file; each exposes `Args` (clap) and `run`.
+
+mod eval;
+mod sim;
+
+use clap::{Parser, Subcommand};
+use tracing_subscriber::EnvFilter;
+
+#[derive(Debug, Parser)]
+#[command(name = "jointloc", version, about, long_about = None)]
+struct Cli {
+    /// Log filter (tracing `EnvFilter` syntax), e.g. `info` or `jointloc_slam=debug`.
+    #[arg(long, global = true, default_value = "warn", env = "JOINTLOC_LOG")]
+    log: String,
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Debug, Subcommand)]
+enum Command {
+    /// APE/RPE of a trajectory against ground truth (same numbers as evo_ape / evo_rpe).
+    Eval(eval::Args),
+    /// Generate a simulated Mars dataset: terrain, satellite map + tiles, UAV images, ground truth.
+    Sim(sim::Args),
+}
+
+fn main() -> std::process::ExitCode {
+    let cli = Cli::parse();
+    let filter = EnvFilter::try_new(&cli.log).unwrap_or_else(|_| EnvFilter::new("warn"));
+    tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(std::io::stderr)
+        .init();
+    let result = match cli.command {
+        Command::Eval(args) => eval::run(args),
+        Command::Sim(args) => sim::run(args),
+    };
+    match result {
+        Ok(()) => std::process::ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            std::process::ExitCode::FAILURE
+        }
+    }
+}
