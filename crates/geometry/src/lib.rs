@@ -4,9 +4,15 @@
 
 pub mod camera;
 pub mod error;
+pub mod homography;
+pub mod pnp;
 pub mod pose;
 pub mod ransac;
 pub mod robust;
+pub mod trajectory;
+pub mod triangulation;
+pub mod two_view;
+pub mod umeyama;
 
 pub use camera::{PinholeCamera, RadTan};
 pub use error::{GeometryError, Result};
