@@ -135,14 +135,6 @@ fn draw<DB: DrawingBackend>(
             .map_err(err)?;
     }
     chart
-        .draw_series(LineSeries::new(
-            ref_xy.iter().copied(),
-            BLACK.mix(0.6).stroke_width(2),
-        ))
-        .map_err(err)?
-        .label("ground truth")
-        .legend(|(x, y)| PathElement::new([(x, y), (x + 20, y)], BLACK.stroke_width(2)));
-    chart
         .draw_series(
             est_xy
                 .windows(2)
@@ -160,6 +152,18 @@ fn draw<DB: DrawingBackend>(
         .map_err(err)?
         .label("estimate (aligned)")
         .legend(|(x, y)| Circle::new((x + 10, y), 4, colour(hi, lo, hi).filled()));
+    // Ground truth on top, so that it stays visible under a dense estimate.
+    let grey = RGBColor(80, 80, 80);
+    chart
+        // Segment by segment: plotters' bitmap backend renders wide polylines with gaps.
+        .draw_series(
+            ref_xy
+                .windows(2)
+                .map(|w| PathElement::new([w[0], w[1]], grey.stroke_width(2))),
+        )
+        .map_err(err)?
+        .label("ground truth")
+        .legend(move |(x, y)| PathElement::new([(x, y), (x + 20, y)], grey.stroke_width(2)));
     if text {
         chart
             .configure_series_labels()
@@ -185,6 +189,8 @@ fn draw<DB: DrawingBackend>(
             .disable_x_axis()
             .y_desc("APE [m]")
             .y_labels(8)
+            .y_label_style(("sans-serif", 12))
+            .axis_desc_style(("sans-serif", 14))
             .light_line_style(WHITE)
             .bold_line_style(WHITE)
             .draw()
