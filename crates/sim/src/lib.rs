@@ -5,7 +5,15 @@
 pub mod error;
 pub mod grid;
 pub mod terrain;
+pub mod craters;
+pub mod noise;
+pub mod rocks;
+pub mod shading;
+pub mod surface;
 
 pub use error::{Result, SimError};
 pub use grid::Grid;
-pub use terrain::{Terrain, TerrainKind};
+pub use shading::{ShadingConfig, Sun, shade};
+pub use terrain::{
+    Terrain, TerrainConfig, TerrainExtent, TerrainKind, generate_terrain,
+};
