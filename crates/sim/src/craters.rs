@@ -337,7 +337,7 @@ pub fn stamp_crater(terrain: &mut Terrain, crater: &Crater) {
     let hs = &mut terrain.height.data[span.clone()];
     let als = &mut terrain.albedo.data[span];
     let cells = (row1 - row0 + 1) * (col1 - col0 + 1);
-    if cells > 1 << 16 {
+    if cells > 1 << 12 {
         hs.par_chunks_mut(w)
             .zip(als.par_chunks_mut(w))
             .enumerate()

@@ -4,6 +4,8 @@
 //! Every value is a pure function of `(seed, x, y)`, so any row of a grid can be computed on
 //! any thread and the result never depends on the thread count.
 
+use std::ops::Range;
+
 /// SplitMix64 finaliser: a fast bijective 64-bit mixer.
 #[inline]
 pub fn mix64(mut z: u64) -> u64 {
@@ -33,6 +35,14 @@ pub fn hash2(seed: u64, ix: i64, iy: i64) -> u64 {
 #[inline]
 pub fn unit_hash(seed: u64, ix: i64, iy: i64) -> f32 {
     (hash2(seed, ix, iy) >> 40) as f32 * (1.0 / (1u64 << 24) as f32)
+}
+
+/// Floor as an integer without a libm call (baseline x86-64 has no rounding instruction).
+/// Valid for |x| < 2^62, far beyond any lattice coordinate here.
+#[inline]
+pub fn fast_floor(x: f64) -> i64 {
+    let i = x as i64;
+    if (i as f64) > x { i - 1 } else { i }
 }
 
 /// 32 unit gradients at odd multiples of 360°/64, so none is axis-aligned.
@@ -93,9 +103,8 @@ fn fade(t: f32) -> f32 {
 /// [-1, 1] with standard deviation ≈ 0.3.
 #[inline]
 pub fn gradient_noise(seed: u64, x: f64, y: f64) -> f32 {
-    let (xf, yf) = (x.floor(), y.floor());
-    let (ix, iy) = (xf as i64, yf as i64);
-    let (fx, fy) = ((x - xf) as f32, (y - yf) as f32);
+    let (ix, iy) = (fast_floor(x), fast_floor(y));
+    let (fx, fy) = ((x - ix as f64) as f32, (y - iy as f64) as f32);
     let n00 = grad_dot(seed, ix, iy, fx, fy);
     let n10 = grad_dot(seed, ix + 1, iy, fx - 1.0, fy);
     let n01 = grad_dot(seed, ix, iy + 1, fx, fy - 1.0);
@@ -201,38 +210,73 @@ impl Fbm {
     /// Plain fBm: Σ amp·noise, standard deviation ≈ 0.3 for the first octave.
     #[inline]
     pub fn eval(&self, x: f64, y: f64) -> f32 {
-        self.octaves.iter().map(|o| o.amp * o.eval(x, y)).sum()
+        self.eval_octaves(x, y, 0..self.octaves.len())
+    }
+
+    /// The fBm sum over a range of octaves only (coarse and fine parts add up to `eval`).
+    #[inline]
+    pub fn eval_octaves(&self, x: f64, y: f64, octaves: Range<usize>) -> f32 {
+        let end = octaves.end.min(self.octaves.len());
+        let start = octaves.start.min(end);
+        self.octaves[start..end]
+            .iter()
+            .map(|o| o.amp * o.eval(x, y))
+            .sum()
     }
 
     /// Ridged multifractal (Musgrave): sharp crests where the noise crosses zero, detail
     /// concentrated on the ridges, smooth valleys. Result in about [0, 1].
     #[inline]
     pub fn ridged(&self, x: f64, y: f64) -> f32 {
-        self.ridged_warped(x, y, x, y, 0)
-    }
-
-    /// Ridged multifractal whose first `n_warped` octaves are evaluated at the warped point
-    /// (wx, wy) and the finer ones at (x, y): the warp bends the ridges without stretching
-    /// the fine detail into streaks.
-    #[inline]
-    pub fn ridged_warped(&self, x: f64, y: f64, wx: f64, wy: f64, n_warped: usize) -> f32 {
-        let mut weight = 1.0f32;
-        let mut sum = 0.0f32;
-        for (i, o) in self.octaves.iter().enumerate() {
-            let n = if i < n_warped {
-                o.eval(wx, wy)
-            } else {
-                o.eval(x, y)
-            };
-            let n = n.abs().min(1.0);
-            let mut s = 1.0 - n;
-            s *= s;
-            s *= weight;
-            weight = (s * 2.0).clamp(0.0, 1.0);
-            sum += s * o.amp;
-        }
+        let RidgedState(sum, _) =
+            self.ridged_octaves(x, y, 0..self.octaves.len(), RidgedState::START, 0.0);
         sum / self.amp_sum
     }
+
+    /// Continues a ridged sum over `octaves` from `state` (the running sum and the weight
+    /// the previous octave hands on). Returns the unnormalised state; divide the final
+    /// sum by [`Fbm::amplitude_sum`]. `crease` > 0 replaces |n| by √(n² + c²) − c, rounding
+    /// the crests (a smooth field can then be interpolated from a lattice).
+    #[inline]
+    pub fn ridged_octaves(
+        &self,
+        x: f64,
+        y: f64,
+        octaves: Range<usize>,
+        state: RidgedState,
+        crease: f32,
+    ) -> RidgedState {
+        let end = octaves.end.min(self.octaves.len());
+        let start = octaves.start.min(end);
+        let RidgedState(mut sum, mut weight) = state;
+        for o in &self.octaves[start..end] {
+            let n = o.eval(x, y);
+            let n = if crease > 0.0 {
+                (n * n + crease * crease).sqrt() - crease
+            } else {
+                n.abs()
+            };
+            let mut s = 1.0 - n.min(1.0);
+            s *= s;
+            s *= weight;
+            weight = if crease > 0.0 {
+                (s * 2.0).tanh()
+            } else {
+                (s * 2.0).clamp(0.0, 1.0)
+            };
+            sum += s * o.amp;
+        }
+        RidgedState(sum, weight)
+    }
+}
+
+/// Running state of a ridged multifractal sum: (sum, weight).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RidgedState(pub f32, pub f32);
+
+impl RidgedState {
+    /// Before the first octave.
+    pub const START: RidgedState = RidgedState(0.0, 1.0);
 }
 
 #[cfg(test)]
