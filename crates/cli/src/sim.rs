@@ -1,8 +1,211 @@
-//! Placeholder: filled in by its issue.
+//! `jointloc sim`: generate a simulated Mars dataset (terrain, satellite map + tiles, UAV
+//! images, ground truth, altimeter) in the layout of DESIGN §3.
 
+use std::path::PathBuf;
+
+use anyhow::Context;
+use indicatif::{ProgressBar, ProgressStyle};
+use jointloc_sim::dataset::{generate_dataset, prepare_output_dir};
+use jointloc_sim::{Difficulty, SimConfig, SimError, Stage, TerrainKind};
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+enum TerrainArg {
+    Crater,
+    Gravel,
+    Mountain,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+enum DifficultyArg {
+    Easy,
+    Medium,
+    Hard,
+}
+
+/// Options of `jointloc sim`. Without `--config`, unset options take the defaults shown.
 #[derive(Debug, clap::Args)]
-pub struct Args {}
+pub struct Args {
+    /// Output folder: created if missing; must be empty unless --force.
+    #[arg(long)]
+    out: PathBuf,
+    /// Replace the dataset in a non-empty output folder (other files there are kept).
+    #[arg(long)]
+    force: bool,
+    /// Terrain kind [default: crater].
+    #[arg(long, value_enum)]
+    terrain: Option<TerrainArg>,
+    /// Flight length in metres [default: 150].
+    #[arg(long, value_parser = positive)]
+    length_m: Option<f64>,
+    /// Master seed: the same seed gives byte-identical files [default: 0].
+    #[arg(long)]
+    seed: Option<u64>,
+    /// UAV-to-map gap: easy 5 cm/px, medium 12.5 cm/px + 45° sun change, hard 25 cm/px + low
+    /// sun [default: easy].
+    #[arg(long, value_enum)]
+    difficulty: Option<DifficultyArg>,
+    /// Start from a full simulator configuration (TOML, as written to <out>/sim.toml); the
+    /// options given on the command line override it.
+    #[arg(long)]
+    config: Option<PathBuf>,
+    /// Image width in pixels [default: 500].
+    #[arg(long, value_parser = clap::value_parser!(u32).range(2..=16384))]
+    width: Option<u32>,
+    /// Image height in pixels [default: 500].
+    #[arg(long, value_parser = clap::value_parser!(u32).range(2..=16384))]
+    height: Option<u32>,
+    /// Focal length in pixels, x [default: 500].
+    #[arg(long, value_parser = positive)]
+    fx: Option<f64>,
+    /// Focal length in pixels, y [default: fx].
+    #[arg(long, value_parser = positive)]
+    fy: Option<f64>,
+    /// Principal point x [default: (width − 1) / 2].
+    #[arg(long)]
+    cx: Option<f64>,
+    /// Principal point y [default: (height − 1) / 2].
+    #[arg(long)]
+    cy: Option<f64>,
+    /// Ground speed in m/s [default: 1].
+    #[arg(long, value_parser = positive)]
+    speed: Option<f64>,
+    /// Frame rate in Hz [default: 5].
+    #[arg(long, value_parser = positive)]
+    rate: Option<f64>,
+    /// Flight height above the ground in metres [default: 10].
+    #[arg(long, value_parser = positive)]
+    altitude: Option<f64>,
+    /// Altimeter noise σ in metres [default: 0.1].
+    #[arg(long)]
+    altimeter_sigma: Option<f64>,
+    /// No progress bar.
+    #[arg(long)]
+    quiet: bool,
+}
 
-pub fn run(_args: Args) -> anyhow::Result<()> {
-    anyhow::bail!("not implemented yet")
+fn positive(s: &str) -> Result<f64, String> {
+    let v: f64 = s.parse().map_err(|_| format!("`{s}` is not a number"))?;
+    if v.is_finite() && v > 0.0 {
+        Ok(v)
+    } else {
+        Err(format!("must be a positive number, got {s}"))
+    }
+}
+
+/// The configuration: `--config` or the defaults, then the command-line overrides.
+fn config(args: &Args) -> anyhow::Result<SimConfig> {
+    let mut cfg = match &args.config {
+        Some(path) => SimConfig::read(path).context("invalid --config")?,
+        None => SimConfig::default(),
+    };
+    if let Some(t) = args.terrain {
+        cfg.terrain_kind = match t {
+            TerrainArg::Crater => TerrainKind::Crater,
+            TerrainArg::Gravel => TerrainKind::Gravel,
+            TerrainArg::Mountain => TerrainKind::Mountain,
+        };
+    }
+    if let Some(d) = args.difficulty {
+        cfg.difficulty = match d {
+            DifficultyArg::Easy => Difficulty::Easy,
+            DifficultyArg::Medium => Difficulty::Medium,
+            DifficultyArg::Hard => Difficulty::Hard,
+        };
+    }
+    if let Some(seed) = args.seed {
+        cfg.seed = seed;
+    }
+    let traj = &mut cfg.trajectory;
+    if let Some(v) = args.length_m {
+        traj.length_m = v;
+    }
+    if let Some(v) = args.speed {
+        traj.speed_mps = v;
+    }
+    if let Some(v) = args.rate {
+        traj.rate_hz = v;
+    }
+    if let Some(v) = args.altitude {
+        traj.altitude_m = v;
+    }
+    if let Some(v) = args.altimeter_sigma {
+        cfg.altimeter_sigma_m = v;
+    }
+    let cam = &mut cfg.camera;
+    if let Some(w) = args.width {
+        cam.width = w;
+        cam.cx = (w as f64 - 1.0) / 2.0;
+    }
+    if let Some(h) = args.height {
+        cam.height = h;
+        cam.cy = (h as f64 - 1.0) / 2.0;
+    }
+    if let Some(fx) = args.fx {
+        cam.fx = fx;
+        cam.fy = fx;
+    }
+    if let Some(fy) = args.fy {
+        cam.fy = fy;
+    }
+    if let Some(cx) = args.cx {
+        cam.cx = cx;
+    }
+    if let Some(cy) = args.cy {
+        cam.cy = cy;
+    }
+    cfg.validate().context("invalid simulator configuration")?;
+    Ok(cfg)
+}
+
+pub fn run(args: Args) -> anyhow::Result<()> {
+    let cfg = config(&args)?;
+    let out = &args.out;
+    prepare_output_dir(out, args.force).map_err(|e| match e {
+        SimError::OutputNotEmpty { .. } => {
+            anyhow::anyhow!("{e} (use --force to replace the dataset in it)")
+        }
+        SimError::Io { path, source } => {
+            anyhow::anyhow!("cannot use output directory {}: {source}", path.display())
+        }
+        other => anyhow::anyhow!("cannot use output directory {}: {other}", out.display()),
+    })?;
+    let bar = if args.quiet {
+        ProgressBar::hidden()
+    } else {
+        ProgressBar::new(1)
+    };
+    bar.set_style(
+        ProgressStyle::with_template("{prefix:>9} [{bar:40}] {pos}/{len} {elapsed_precise}")
+            .expect("valid template")
+            .progress_chars("=> "),
+    );
+    let mut current: Option<Stage> = None;
+    let mut progress = |stage: Stage, done: usize, total: usize| {
+        if current != Some(stage) {
+            current = Some(stage);
+            bar.reset();
+            bar.set_prefix(stage.name());
+        }
+        bar.set_length(total as u64);
+        bar.set_position(done as u64);
+    };
+    let summary = generate_dataset(&cfg, out, &mut progress)
+        .with_context(|| format!("generating the dataset in {}", out.display()))?;
+    bar.finish_and_clear();
+    println!(
+        "wrote {} frames ({:.1} m), a {}x{} px map at {} m/px and {} tiles to {} \
+         (terrain {:.1} s, shading {:.1} s, satellite {:.1} s, frames {:.1} s)",
+        summary.frames,
+        summary.path_length_m,
+        summary.map_width_px,
+        summary.map_height_px,
+        summary.map_gsd_m,
+        summary.tiles,
+        out.display(),
+        summary.seconds[0],
+        summary.seconds[1],
+        summary.seconds[2],
+        summary.seconds[3],
+    );
+    Ok(())
 }

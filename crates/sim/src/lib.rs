@@ -10,9 +10,19 @@ pub mod noise;
 pub mod rocks;
 pub mod shading;
 pub mod surface;
+pub mod camera_yaml;
+pub mod dataset;
+pub mod map_toml;
+pub mod render;
+pub mod satellite;
+pub mod sensor;
+pub mod trajectory;
 
 pub use error::{Result, SimError};
 pub use grid::Grid;
+pub use dataset::{DatasetPlan, DatasetSummary, SimConfig, Stage, generate_dataset, plan_dataset, write_dataset};
+pub use map_toml::MapInfo;
+pub use satellite::{Difficulty, SatelliteConfig};
 pub use shading::{ShadingConfig, Sun, shade};
 pub use terrain::{
     Terrain, TerrainConfig, TerrainExtent, TerrainKind, generate_terrain,

@@ -1,0 +1,718 @@
+//! Dataset generation: plan (path, map size, terrain extent), terrain, shading, satellite map
+//! and tiles, UAV frames, ground truth and altimeter, written in the layout of DESIGN §3:
+//!
+//! ```text
+//! <out>/uav/images/000000.png …  uav/images.txt   uav/gt.txt   uav/altimeter.txt
+//! <out>/camera.yaml   <out>/satellite.png   <out>/satellite/<idx>_<x>_<y>.png   <out>/map.toml
+//! <out>/sim.toml      (the full configuration, to reproduce the dataset)
+//! ```
+//!
+//! - `images.txt`: `timestamp filename`, the file name relative to `uav/` (TUM `rgb.txt` style).
+//! - `gt.txt`: TUM `timestamp tx ty tz qx qy qz qw`, camera-to-world in the world frame of
+//!   `map.toml`, the exact pose each frame was rendered from, printed with round-trip precision.
+//! - `altimeter.txt`: `timestamp altitude_m`, the true height of the camera above the terrain
+//!   directly below it (vertically, not along the optical axis) plus Gaussian noise of σ
+//!   `altimeter_sigma_m`: what a laser or radar altimeter reports, never exact.
+//! - Timestamps are `i / rate` seconds with six decimals, identical strings in all three files.
+//!
+//! Everything random is drawn from sub-seeds of `SimConfig::seed`; rayon only parallelises
+//! work whose result does not depend on scheduling, so a seed gives byte-identical files.
+
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use jointloc_geometry::{CameraToWorld, PinholeCamera};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use rand_distr::{Distribution, Normal};
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+use crate::camera_yaml::write_camera_yaml;
+use crate::error::{Result, SimError};
+use crate::grid::Grid;
+use crate::map_toml::{MapInfo, SceneInfo, covered_length, tile_stride};
+use crate::render::{UavRenderer, validate_camera};
+use crate::satellite::{Difficulty, SatelliteConfig, crop, downsample_mean};
+use crate::sensor::{SensorConfig, expose};
+use crate::shading::{ShadingConfig, Sun, shade};
+use crate::terrain::{Terrain, TerrainConfig, TerrainExtent, TerrainKind, generate_terrain};
+use crate::trajectory::{PlanarPath, TrajectoryConfig, fly, plan_path};
+
+/// Everything that defines a dataset. Same config (seed included) → byte-identical files.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct SimConfig {
+    /// Terrain kind: crater, gravel or mountain.
+    pub terrain_kind: TerrainKind,
+    /// Master seed; every random choice derives from it.
+    pub seed: u64,
+    /// Size of the UAV-to-map gap (satellite GSD, sun change, radiometry).
+    pub difficulty: Difficulty,
+    /// Flight: length (150 m), speed (1 m/s), rate (5 Hz), altitude (10 m), path shape, jitter.
+    pub trajectory: TrajectoryConfig,
+    /// UAV camera (default: 500 × 500, fx = fy = 500, principal point at the centre).
+    pub camera: PinholeCamera,
+    /// UAV camera sensor (blur, exposure, noise, gamma).
+    pub sensor: SensorConfig,
+    /// σ of the altimeter's Gaussian noise, metres.
+    pub altimeter_sigma_m: f64,
+    /// Smallest distance from the flown path to the map edge, metres (raised automatically to
+    /// cover the camera footprint).
+    pub margin_m: f64,
+    /// Sun during the flight; drawn from the seed when absent (azimuth 0–360°, elevation 35–60°).
+    pub uav_sun: Option<Sun>,
+    /// Satellite map settings; the difficulty preset when absent.
+    pub satellite: Option<SatelliteConfig>,
+    /// Terrain synthesis (cell size 2.5 cm by default).
+    pub terrain: TerrainConfig,
+    /// Photometry shared by the UAV and the satellite render.
+    pub shading: ShadingConfig,
+}
+
+impl Default for SimConfig {
+    fn default() -> Self {
+        Self {
+            terrain_kind: TerrainKind::Crater,
+            seed: 0,
+            difficulty: Difficulty::Easy,
+            trajectory: TrajectoryConfig::default(),
+            camera: PinholeCamera::ideal(500.0, 500, 500),
+            sensor: SensorConfig::default(),
+            altimeter_sigma_m: 0.1,
+            margin_m: 12.0,
+            uav_sun: None,
+            satellite: None,
+            terrain: TerrainConfig::default(),
+            shading: ShadingConfig::default(),
+        }
+    }
+}
+
+/// Random streams derived from the master seed.
+mod stream {
+    pub const PATH: u64 = 1;
+    pub const TERRAIN: u64 = 2;
+    pub const SUN: u64 = 3;
+    pub const FLIGHT: u64 = 4;
+    pub const ALTIMETER: u64 = 5;
+    pub const SATELLITE_NOISE: u64 = 6;
+    pub const FRAME_NOISE: u64 = 7;
+}
+
+/// SplitMix64 of `seed` and `stream`: independent sub-seeds.
+pub fn sub_seed(seed: u64, stream: u64) -> u64 {
+    let mut z = seed ^ stream.wrapping_mul(0x9E37_79B9_7F4A_7C15);
+    z = z.wrapping_add(0x9E37_79B9_7F4A_7C15);
+    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+    z ^ (z >> 31)
+}
+
+impl SimConfig {
+    /// Reads a configuration from TOML (missing keys take their defaults).
+    pub fn read(path: &Path) -> Result<Self> {
+        let text = std::fs::read_to_string(path).map_err(|source| SimError::Io {
+            path: path.to_path_buf(),
+            source,
+        })?;
+        toml::from_str(&text).map_err(|e| SimError::Parse {
+            path: path.to_path_buf(),
+            line: e.span().map_or(0, |s| {
+                text[..s.start.min(text.len())].lines().count().max(1)
+            }),
+            message: e.message().to_string(),
+        })
+    }
+
+    /// The configuration as TOML (what `sim.toml` holds).
+    pub fn to_toml_string(&self) -> Result<String> {
+        toml::to_string(self).map_err(|e| SimError::InvalidConfig {
+            field: "config",
+            value: String::new(),
+            reason: e.to_string(),
+        })
+    }
+
+    /// The satellite settings in force (explicit, or the difficulty preset).
+    pub fn satellite_config(&self) -> SatelliteConfig {
+        self.satellite
+            .clone()
+            .unwrap_or_else(|| self.difficulty.satellite_config())
+    }
+
+    /// Suns of the flight and of the map.
+    pub fn suns(&self) -> (Sun, Sun) {
+        let mut rng = ChaCha8Rng::seed_from_u64(sub_seed(self.seed, stream::SUN));
+        let drawn = Sun {
+            azimuth_deg: rng.random_range(0.0..360.0),
+            elevation_deg: rng.random_range(35.0..60.0),
+        };
+        let uav = self.uav_sun.unwrap_or(drawn);
+        let sat = self.satellite_config();
+        let sign = if rng.random_bool(0.5) { 1.0 } else { -1.0 };
+        let satellite = Sun {
+            azimuth_deg: (uav.azimuth_deg + sign * sat.sun_azimuth_change_deg).rem_euclid(360.0),
+            elevation_deg: sat.sun_elevation_deg,
+        };
+        (uav, satellite)
+    }
+
+    /// Checks every section; errors name the field.
+    pub fn validate(&self) -> Result<()> {
+        self.trajectory.validate()?;
+        validate_camera(&self.camera)?;
+        self.sensor.validate("sensor")?;
+        self.terrain.validate()?;
+        self.satellite_config().validate(self.terrain.cell_m)?;
+        for (field, v) in [
+            ("altimeter_sigma_m", self.altimeter_sigma_m),
+            ("margin_m", self.margin_m),
+        ] {
+            if !(v.is_finite() && v >= 0.0) {
+                return Err(SimError::InvalidConfig {
+                    field,
+                    value: v.to_string(),
+                    reason: "must be ≥ 0".into(),
+                });
+            }
+        }
+        if let Some(sun) = self.uav_sun
+            && !(sun.azimuth_deg.is_finite()
+                && sun.elevation_deg > 0.0
+                && sun.elevation_deg <= 90.0)
+        {
+            return Err(SimError::InvalidConfig {
+                field: "uav_sun",
+                value: format!("{sun:?}"),
+                reason: "needs a finite azimuth and an elevation in (0, 90]".into(),
+            });
+        }
+        Ok(())
+    }
+
+    /// Distance from the path to the map edge: `margin_m`, or more when the camera footprint
+    /// (at the highest altitude, with 2° of tilt to spare) reaches further.
+    pub fn effective_margin_m(&self) -> f64 {
+        let cam = &self.camera;
+        let (w, h) = (cam.width as f64, cam.height as f64);
+        let corner_tan = [
+            (-0.5, -0.5),
+            (w - 0.5, -0.5),
+            (-0.5, h - 0.5),
+            (w - 0.5, h - 0.5),
+        ]
+        .iter()
+        .filter_map(|&(u, v)| cam.unproject(&nalgebra::Point2::new(u, v)))
+        .map(|r| r.xy().norm())
+        .fold(0.0, f64::max);
+        let tilt = (corner_tan.atan() + 2f64.to_radians())
+            .min(80f64.to_radians())
+            .tan();
+        let height = self.trajectory.altitude_m + self.trajectory.altitude_variation_m;
+        self.margin_m.max(1.2 * height * tilt + 1.0)
+    }
+}
+
+/// Where things go: computed before any terrain exists.
+#[derive(Debug, Clone)]
+pub struct DatasetPlan {
+    /// The flown path in the world frame.
+    pub path: PlanarPath,
+    /// Georeference of the map (scene info included).
+    pub map: MapInfo,
+    /// The terrain grid: cell borders coincide with map pixel borders.
+    pub extent: TerrainExtent,
+    /// Terrain cells per map pixel along each axis.
+    pub cells_per_pixel: usize,
+    pub uav_sun: Sun,
+    pub satellite_sun: Sun,
+}
+
+impl DatasetPlan {
+    /// Camera-to-world pose of every frame over `terrain` (the ground truth written).
+    pub fn poses(&self, cfg: &SimConfig, terrain: &Terrain) -> Vec<CameraToWorld> {
+        let ground = |x: f64, y: f64| terrain.height_at(x, y);
+        fly(
+            &self.path,
+            &ground,
+            &cfg.trajectory,
+            sub_seed(cfg.seed, stream::FLIGHT),
+        )
+    }
+}
+
+/// Plans the path, sizes the map to the path's bounding box plus margin (rounded up to whole
+/// tile strides) and lays the terrain grid under the map.
+pub fn plan_dataset(cfg: &SimConfig) -> Result<DatasetPlan> {
+    cfg.validate()?;
+    let sat = cfg.satellite_config();
+    let factor = sat.validate(cfg.terrain.cell_m)?;
+    let mut path = plan_path(&cfg.trajectory, sub_seed(cfg.seed, stream::PATH))?;
+    let (lo, hi) = path.bbox();
+    let margin = cfg.effective_margin_m();
+    let (tw, th) = (cfg.camera.width, cfg.camera.height);
+    let (sx, sy) = (
+        tile_stride(tw, sat.tile_overlap),
+        tile_stride(th, sat.tile_overlap),
+    );
+    let need = |span: f64| ((span + 2.0 * margin) / sat.gsd_m).ceil() as u32;
+    let width_px = covered_length(need(hi[0] - lo[0]), tw, sx);
+    let height_px = covered_length(need(hi[1] - lo[1]), th, sy);
+    let mut map = MapInfo::new(sat.gsd_m, width_px, height_px, tw, th, sat.tile_overlap)?;
+    // Centre the path in the map.
+    let centre = map.pixel_to_world(
+        (width_px as f64 - 1.0) / 2.0,
+        (height_px as f64 - 1.0) / 2.0,
+    );
+    path.translate(
+        centre.0 - 0.5 * (lo[0] + hi[0]),
+        centre.1 - 0.5 * (lo[1] + hi[1]),
+    );
+    let (uav_sun, satellite_sun) = cfg.suns();
+    map.scene = Some(SceneInfo {
+        generator: format!("jointloc-sim {}", env!("CARGO_PKG_VERSION")),
+        terrain: cfg.terrain_kind,
+        difficulty: cfg.difficulty,
+        seed: cfg.seed,
+        terrain_cell_m: cfg.terrain.cell_m,
+        uav_sun,
+        satellite_sun,
+    });
+    // Pixel (0, 0) spans [−gsd/2, gsd/2]; its first cell's centre is half a cell inside.
+    let half = (factor as f64 - 1.0) / 2.0 * cfg.terrain.cell_m;
+    let extent = TerrainExtent {
+        origin_x: -half,
+        origin_y: half,
+        width_cells: width_px as usize * factor,
+        height_cells: height_px as usize * factor,
+    };
+    Ok(DatasetPlan {
+        path,
+        map,
+        extent,
+        cells_per_pixel: factor,
+        uav_sun,
+        satellite_sun,
+    })
+}
+
+/// Stage of [`generate_dataset`] reported to the progress callback.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Stage {
+    Terrain,
+    Shading,
+    Satellite,
+    Frames,
+}
+
+impl Stage {
+    /// Lower-case name for progress displays.
+    pub fn name(self) -> &'static str {
+        match self {
+            Stage::Terrain => "terrain",
+            Stage::Shading => "shading",
+            Stage::Satellite => "satellite",
+            Stage::Frames => "frames",
+        }
+    }
+}
+
+/// What was written, with wall times per stage.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct DatasetSummary {
+    pub out_dir: PathBuf,
+    pub frames: usize,
+    pub path_length_m: f64,
+    pub map_width_px: u32,
+    pub map_height_px: u32,
+    pub map_gsd_m: f64,
+    pub tiles: usize,
+    pub terrain_width_cells: usize,
+    pub terrain_height_cells: usize,
+    /// UAV pixels whose ray left the terrain (0 unless the margin is too small).
+    pub missed_pixels: usize,
+    /// Seconds spent per stage: terrain, shading, satellite, frames.
+    pub seconds: [f64; 4],
+}
+
+/// Progress callback: `(stage, done, total)`.
+pub type Progress<'a> = &'a mut dyn FnMut(Stage, usize, usize);
+
+/// Makes `dir` ready for a dataset: creates it if missing; if it holds anything, fails unless
+/// `overwrite`, in which case only the dataset's own entries are removed (other files stay).
+pub fn prepare_output_dir(dir: &Path, overwrite: bool) -> Result<()> {
+    let io = |source| SimError::Io {
+        path: dir.to_path_buf(),
+        source,
+    };
+    if dir.exists() {
+        if !dir.is_dir() {
+            return Err(io(std::io::Error::new(
+                std::io::ErrorKind::AlreadyExists,
+                "exists and is not a directory",
+            )));
+        }
+        let non_empty = std::fs::read_dir(dir).map_err(io)?.next().is_some();
+        if non_empty {
+            if !overwrite {
+                return Err(SimError::OutputNotEmpty {
+                    path: dir.to_path_buf(),
+                });
+            }
+            for name in ["uav", "satellite"] {
+                let p = dir.join(name);
+                if p.is_dir() {
+                    std::fs::remove_dir_all(&p)
+                        .map_err(|source| SimError::Io { path: p, source })?;
+                }
+            }
+            for name in ["satellite.png", "camera.yaml", "map.toml", "sim.toml"] {
+                let p = dir.join(name);
+                if p.is_file() {
+                    std::fs::remove_file(&p).map_err(|source| SimError::Io { path: p, source })?;
+                }
+            }
+        }
+    }
+    std::fs::create_dir_all(dir).map_err(io)?;
+    // Fail early, with a clear message, when the folder is not writable.
+    let probe = dir.join(".jointloc-write-test");
+    std::fs::write(&probe, b"").map_err(|source| SimError::Io {
+        path: dir.to_path_buf(),
+        source,
+    })?;
+    std::fs::remove_file(&probe).map_err(|source| SimError::Io {
+        path: probe,
+        source,
+    })?;
+    Ok(())
+}
+
+/// Generates the whole dataset into `out_dir` (created if missing; existing dataset files are
+/// overwritten, see [`prepare_output_dir`] for the safe policy).
+pub fn generate_dataset(
+    cfg: &SimConfig,
+    out_dir: &Path,
+    progress: Progress,
+) -> Result<DatasetSummary> {
+    let plan = plan_dataset(cfg)?;
+    let start = Instant::now();
+    progress(Stage::Terrain, 0, 1);
+    let terrain = generate_terrain(
+        cfg.terrain_kind,
+        &plan.extent,
+        &cfg.terrain,
+        sub_seed(cfg.seed, stream::TERRAIN),
+    )?;
+    progress(Stage::Terrain, 1, 1);
+    let terrain_s = start.elapsed().as_secs_f64();
+    tracing::info!(
+        cells = plan.extent.width_cells * plan.extent.height_cells,
+        seconds = terrain_s,
+        "terrain synthesised"
+    );
+    let mut summary = write_dataset(cfg, &plan, &terrain, out_dir, progress)?;
+    summary.seconds[0] = terrain_s;
+    Ok(summary)
+}
+
+/// Writes every dataset file for `terrain`, which must cover `plan.extent` (tests paint
+/// markers into a terrain and call this directly).
+pub fn write_dataset(
+    cfg: &SimConfig,
+    plan: &DatasetPlan,
+    terrain: &Terrain,
+    out_dir: &Path,
+    progress: Progress,
+) -> Result<DatasetSummary> {
+    cfg.validate()?;
+    check_terrain(plan, terrain)?;
+    let uav_dir = out_dir.join("uav");
+    let images_dir = uav_dir.join("images");
+    let tiles_dir = out_dir.join(&plan.map.tiles.dir);
+    for d in [&images_dir, &tiles_dir] {
+        std::fs::create_dir_all(d).map_err(|source| SimError::Io {
+            path: d.clone(),
+            source,
+        })?;
+    }
+    let mut seconds = [0.0; 4];
+
+    // Satellite map first, so its radiance grid is freed before the UAV one is made.
+    let t = Instant::now();
+    progress(Stage::Satellite, 0, 1);
+    let sat = cfg.satellite_config();
+    let tiles = plan.map.tile_list();
+    {
+        let radiance = shade(terrain, &plan.satellite_sun, &cfg.shading);
+        let map = downsample_mean(&radiance, plan.cells_per_pixel)?;
+        drop(radiance);
+        let exposure = sat.sensor.exposure_for(&map.data);
+        let image = expose(
+            &map,
+            &sat.sensor,
+            exposure,
+            sub_seed(cfg.seed, stream::SATELLITE_NOISE),
+        );
+        write_png(&out_dir.join(&plan.map.image), &image)?;
+        tiles.par_iter().try_for_each(|tile| {
+            let window = crop(
+                &image,
+                tile.x as usize,
+                tile.y as usize,
+                tile.width as usize,
+                tile.height as usize,
+            );
+            write_png(&tiles_dir.join(tile.file_name()), &window)
+        })?;
+    }
+    plan.map.write(&out_dir.join("map.toml"))?;
+    progress(Stage::Satellite, 1, 1);
+    seconds[2] = t.elapsed().as_secs_f64();
+
+    let t = Instant::now();
+    progress(Stage::Shading, 0, 1);
+    let radiance = shade(terrain, &plan.uav_sun, &cfg.shading);
+    progress(Stage::Shading, 1, 1);
+    seconds[1] = t.elapsed().as_secs_f64();
+
+    // Poses, ground truth, altimeter, camera.
+    let poses = plan.poses(cfg, terrain);
+    write_text_files(cfg, plan, terrain, &poses, &uav_dir)?;
+    write_camera_yaml(
+        &out_dir.join("camera.yaml"),
+        &cfg.camera,
+        cfg.trajectory.rate_hz,
+    )?;
+    let sim_toml = cfg.to_toml_string()?;
+    write_file(&out_dir.join("sim.toml"), sim_toml.as_bytes())?;
+
+    // Frames: several in flight at once (each also parallel over rows).
+    let t = Instant::now();
+    let renderer = UavRenderer::new(terrain, &radiance, cfg.camera)?;
+    let exposure = cfg.sensor.exposure_for(&radiance.data);
+    let n = poses.len();
+    let chunk = 4 * rayon::current_num_threads().max(1);
+    let mut missed = 0usize;
+    progress(Stage::Frames, 0, n);
+    for start in (0..n).step_by(chunk) {
+        let end = (start + chunk).min(n);
+        let misses: Vec<usize> = (start..end)
+            .into_par_iter()
+            .map(|i| -> Result<usize> {
+                let frame = renderer.render(&poses[i]);
+                let seed = sub_seed(sub_seed(cfg.seed, stream::FRAME_NOISE), i as u64);
+                let image = expose(&frame.radiance, &cfg.sensor, exposure, seed);
+                write_png(&images_dir.join(frame_name(i)), &image)?;
+                Ok(frame.misses)
+            })
+            .collect::<Result<_>>()?;
+        missed += misses.iter().sum::<usize>();
+        progress(Stage::Frames, end, n);
+    }
+    seconds[3] = t.elapsed().as_secs_f64();
+    if missed > 0 {
+        tracing::warn!(
+            missed,
+            "UAV pixels saw past the terrain edge (margin too small?)"
+        );
+    }
+    Ok(DatasetSummary {
+        out_dir: out_dir.to_path_buf(),
+        frames: n,
+        path_length_m: plan.path.samples.last().map_or(0.0, |s| s.s),
+        map_width_px: plan.map.width_px,
+        map_height_px: plan.map.height_px,
+        map_gsd_m: plan.map.gsd_m,
+        tiles: tiles.len(),
+        terrain_width_cells: terrain.height.width,
+        terrain_height_cells: terrain.height.height,
+        missed_pixels: missed,
+        seconds,
+    })
+}
+
+fn check_terrain(plan: &DatasetPlan, terrain: &Terrain) -> Result<()> {
+    let e = &plan.extent;
+    let same = terrain.height.width == e.width_cells
+        && terrain.height.height == e.height_cells
+        && terrain.albedo.width == e.width_cells
+        && terrain.albedo.height == e.height_cells
+        && (terrain.origin_x - e.origin_x).abs() < 1e-9
+        && (terrain.origin_y - e.origin_y).abs() < 1e-9;
+    if same {
+        Ok(())
+    } else {
+        Err(SimError::InvalidConfig {
+            field: "terrain",
+            value: format!(
+                "{}x{} at ({}, {})",
+                terrain.height.width, terrain.height.height, terrain.origin_x, terrain.origin_y
+            ),
+            reason: format!(
+                "must match the planned extent {}x{} at ({}, {})",
+                e.width_cells, e.height_cells, e.origin_x, e.origin_y
+            ),
+        })
+    }
+}
+
+/// `000000.png`.
+pub fn frame_name(i: usize) -> String {
+    format!("{i:06}.png")
+}
+
+/// Timestamp of frame `i`, as written in every file.
+pub fn timestamp(i: usize, rate_hz: f64) -> String {
+    format!("{:.6}", i as f64 / rate_hz)
+}
+
+fn write_text_files(
+    cfg: &SimConfig,
+    plan: &DatasetPlan,
+    terrain: &Terrain,
+    poses: &[CameraToWorld],
+    uav_dir: &Path,
+) -> Result<()> {
+    let rate = cfg.trajectory.rate_hz;
+    let mut images = String::from("# timestamp filename (relative to this folder)\n");
+    let mut gt = String::from(
+        "# timestamp tx ty tz qx qy qz qw (camera-to-world, world frame of map.toml)\n",
+    );
+    let mut alt =
+        String::from("# timestamp altitude_m (height above the terrain directly below, noisy)\n");
+    let mut rng = ChaCha8Rng::seed_from_u64(sub_seed(cfg.seed, stream::ALTIMETER));
+    let noise = Normal::new(0.0, cfg.altimeter_sigma_m).map_err(|e| SimError::InvalidConfig {
+        field: "altimeter_sigma_m",
+        value: cfg.altimeter_sigma_m.to_string(),
+        reason: e.to_string(),
+    })?;
+    for (i, pose) in poses.iter().enumerate() {
+        let ts = timestamp(i, rate);
+        images += &format!("{ts} images/{}\n", frame_name(i));
+        let (t, q) = pose.to_translation_quaternion();
+        gt += &format!(
+            "{ts} {} {} {} {} {} {} {}\n",
+            t[0], t[1], t[2], q[0], q[1], q[2], q[3]
+        );
+        let truth = t[2] - terrain.height_at(t[0], t[1]);
+        let measured = truth + noise.sample(&mut rng);
+        alt += &format!("{ts} {measured:.4}\n");
+    }
+    debug_assert_eq!(poses.len(), plan.path.samples.len());
+    write_file(&uav_dir.join("images.txt"), images.as_bytes())?;
+    write_file(&uav_dir.join("gt.txt"), gt.as_bytes())?;
+    write_file(&uav_dir.join("altimeter.txt"), alt.as_bytes())
+}
+
+fn write_file(path: &Path, bytes: &[u8]) -> Result<()> {
+    let io = |source| SimError::Io {
+        path: path.to_path_buf(),
+        source,
+    };
+    let mut f = std::io::BufWriter::new(std::fs::File::create(path).map_err(io)?);
+    f.write_all(bytes).map_err(io)?;
+    f.flush().map_err(io)
+}
+
+/// Writes an 8-bit grey PNG.
+pub fn write_png(path: &Path, image: &Grid<u8>) -> Result<()> {
+    image::save_buffer_with_format(
+        path,
+        &image.data,
+        image.width as u32,
+        image.height as u32,
+        image::ExtendedColorType::L8,
+        image::ImageFormat::Png,
+    )
+    .map_err(|e| SimError::Image {
+        path: path.to_path_buf(),
+        message: e.to_string(),
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn plan_lays_the_terrain_under_the_map_pixels() {
+        for (d, f) in [
+            (Difficulty::Easy, 2),
+            (Difficulty::Medium, 5),
+            (Difficulty::Hard, 10),
+        ] {
+            let cfg = SimConfig {
+                difficulty: d,
+                ..Default::default()
+            };
+            let plan = plan_dataset(&cfg).unwrap();
+            assert_eq!(plan.cells_per_pixel, f);
+            let map = &plan.map;
+            assert_eq!(plan.extent.width_cells, map.width_px as usize * f);
+            // Mean of the first pixel's cell centres is world (0, 0).
+            let c = cfg.terrain.cell_m;
+            let mean_x = plan.extent.origin_x + (f as f64 - 1.0) / 2.0 * c;
+            let mean_y = plan.extent.origin_y - (f as f64 - 1.0) / 2.0 * c;
+            assert!(mean_x.abs() < 1e-12 && mean_y.abs() < 1e-12);
+            // The path keeps the margin from the map edge.
+            let (w, h) = map.extent_m();
+            let m = cfg.effective_margin_m();
+            let half = map.gsd_m / 2.0;
+            for s in &plan.path.samples {
+                assert!(s.x >= -half + m - 1e-6 && s.x <= w - half - m + 1e-6);
+                assert!(-s.y >= -half + m - 1e-6 && -s.y <= h - half - m + 1e-6);
+            }
+            // Whole tiles.
+            assert_eq!((map.width_px - 500) % 250, 0);
+        }
+    }
+
+    #[test]
+    fn suns_differ_by_the_preset_azimuth_change() {
+        for seed in 0..5 {
+            for d in Difficulty::ALL {
+                let cfg = SimConfig {
+                    seed,
+                    difficulty: d,
+                    ..Default::default()
+                };
+                let (uav, sat) = cfg.suns();
+                let diff = (sat.azimuth_deg - uav.azimuth_deg).rem_euclid(360.0);
+                let diff = diff.min(360.0 - diff);
+                assert!((diff - d.satellite_config().sun_azimuth_change_deg).abs() < 1e-9);
+                assert!((35.0..60.0).contains(&uav.elevation_deg));
+            }
+        }
+    }
+
+    #[test]
+    fn sub_seeds_differ() {
+        let a: Vec<u64> = (0..8).map(|s| sub_seed(1, s)).collect();
+        let mut b = a.clone();
+        b.sort();
+        b.dedup();
+        assert_eq!(a.len(), b.len());
+        assert_ne!(sub_seed(1, 1), sub_seed(2, 1));
+    }
+
+    #[test]
+    fn config_round_trips_through_toml() {
+        let cfg = SimConfig {
+            seed: 9,
+            terrain_kind: TerrainKind::Gravel,
+            difficulty: Difficulty::Hard,
+            ..Default::default()
+        };
+        let text = toml::to_string(&cfg).unwrap();
+        let back: SimConfig = toml::from_str(&text).unwrap();
+        assert_eq!(back, cfg);
+        let partial: SimConfig =
+            toml::from_str("seed = 3\n[trajectory]\nlength_m = 20.0\n").unwrap();
+        assert_eq!(partial.seed, 3);
+        assert_eq!(partial.trajectory.length_m, 20.0);
+        assert_eq!(partial.trajectory.rate_hz, 5.0);
+    }
+}
