@@ -2,7 +2,7 @@
 //!
 //! ```text
 //! cargo run --release -p jointloc-sim --example terrain_preview -- [--size-m 25] [--seed 1]
-//!     [--out /tmp] [--sun-az 135] [--sun-el 30] [--timing]
+//!     [--out /tmp] [--sun-az 135] [--sun-el 30] [--cell 0.025] [--timing]
 //! ```
 //! Writes `<out>/terrain_<kind>.png` (grey, as a camera sees radiance) and
 //! `<out>/terrain_<kind>_color.png` (tinted for a human eye). `--timing` instead generates and
@@ -32,7 +32,10 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         elevation_deg: arg(&args, "--sun-el", 30.0),
     };
     let timing = args.iter().any(|a| a == "--timing");
-    let cfg = TerrainConfig::default();
+    let cfg = TerrainConfig {
+        cell_m: arg(&args, "--cell", 0.025),
+        ..Default::default()
+    };
     let shading = ShadingConfig::default();
     let kinds = [
         TerrainKind::Crater,

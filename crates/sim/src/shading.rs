@@ -43,6 +43,10 @@ pub struct ShadingConfig {
     pub shadow_softness_cells: f64,
     /// Cast shadows on (off leaves only self-shadowing by the surface orientation).
     pub cast_shadows: bool,
+    /// Radius (m) over which hollows hide part of the sky: a cell Δ below the local mean
+    /// height sees the sky over a horizon of tan α ≈ 2Δ / radius, so its sky light is scaled
+    /// by cos² α (at least 0.3). 0 turns sky occlusion off.
+    pub sky_occlusion_radius_m: f64,
 }
 
 impl Default for ShadingConfig {
@@ -52,6 +56,7 @@ impl Default for ShadingConfig {
             lunar_lambert_l: 0.3,
             shadow_softness_cells: 1.0,
             cast_shadows: true,
+            sky_occlusion_radius_m: 0.5,
         }
     }
 }
@@ -88,6 +93,13 @@ pub fn shade(terrain: &Terrain, sun: &Sun, cfg: &ShadingConfig) -> Grid<f32> {
     let sky = cfg.sky_fraction.max(0.0) as f32;
     let inv2 = (0.5 / terrain.cell_m) as f32;
     let hg = &terrain.height;
+    let radius = cfg.sky_occlusion_radius_m;
+    let mean = (radius.is_finite() && radius > 0.0).then(|| MeanHeight::new(terrain, radius));
+    let inv_half_r = if radius > 0.0 {
+        (2.0 / radius) as f32
+    } else {
+        0.0
+    };
     out.data
         .par_chunks_mut(w)
         .zip(terrain.albedo.data.par_chunks(w))
@@ -111,8 +123,92 @@ pub fn shade(terrain: &Terrain, sun: &Sun, cfg: &ShadingConfig) -> Grid<f32> {
                 } else {
                     0.0
                 };
-                let irradiance = orow[col] * direct + sky * 0.5 * (1.0 + nz);
+                let mut sky_seen = sky * 0.5 * (1.0 + nz);
+                if let Some(m) = &mean {
+                    let depth = m.at(col, row) - mid[col];
+                    if depth > 0.0 {
+                        let t = depth * inv_half_r;
+                        sky_seen *= (1.0 / (1.0 + t * t)).max(0.3);
+                    }
+                }
+                let irradiance = orow[col] * direct + sky_seen;
                 orow[col] = arow[col] * irradiance;
+            }
+        });
+    out
+}
+
+/// Mean height over a square of side ≈ 2 · radius around each cell, computed on a lattice
+/// of block means (about 5 blocks per radius) and sampled bilinearly: 1/16 of the grid's
+/// memory or less.
+struct MeanHeight {
+    grid: Grid<f32>,
+    step: usize,
+}
+
+impl MeanHeight {
+    fn new(t: &Terrain, radius_m: f64) -> Self {
+        let (w, h) = (t.height.width, t.height.height);
+        let step = ((radius_m / t.cell_m / 5.0).round() as usize).clamp(1, 64);
+        let (cw, ch) = (w.div_ceil(step), h.div_ceil(step));
+        let mut blocks = Grid::filled(cw, ch, 0.0f32);
+        blocks
+            .data
+            .par_chunks_mut(cw)
+            .enumerate()
+            .for_each(|(j, brow)| {
+                let rows = j * step..((j + 1) * step).min(h);
+                let n_rows = rows.len();
+                for (i, b) in brow.iter_mut().enumerate() {
+                    let cols = i * step..((i + 1) * step).min(w);
+                    let n = (n_rows * cols.len()) as f32;
+                    let mut sum = 0.0f32;
+                    for r in rows.clone() {
+                        sum += t.height.data[r * w + cols.start..r * w + cols.end]
+                            .iter()
+                            .sum::<f32>();
+                    }
+                    *b = sum / n;
+                }
+            });
+        let rc = ((radius_m / (step as f64 * t.cell_m)).round() as usize).max(1);
+        let blurred = box_blur(&box_blur(&blocks, rc, true), rc, false);
+        Self {
+            grid: blurred,
+            step,
+        }
+    }
+
+    #[inline]
+    fn at(&self, col: usize, row: usize) -> f32 {
+        let s = self.step as f64;
+        self.grid
+            .bilinear((col as f64 + 0.5) / s - 0.5, (row as f64 + 0.5) / s - 0.5)
+    }
+}
+
+/// Box mean of radius `r` along rows (`horizontal`) or columns, shrinking at the borders.
+fn box_blur(g: &Grid<f32>, r: usize, horizontal: bool) -> Grid<f32> {
+    let (w, h) = (g.width, g.height);
+    let mut out = Grid::filled(w, h, 0.0f32);
+    out.data
+        .par_chunks_mut(w)
+        .enumerate()
+        .for_each(|(row, orow)| {
+            for (col, o) in orow.iter_mut().enumerate() {
+                let (mut sum, mut n) = (0.0f32, 0.0f32);
+                if horizontal {
+                    for c in col.saturating_sub(r)..(col + r + 1).min(w) {
+                        sum += g.data[row * w + c];
+                        n += 1.0;
+                    }
+                } else {
+                    for rr in row.saturating_sub(r)..(row + r + 1).min(h) {
+                        sum += g.data[rr * w + col];
+                        n += 1.0;
+                    }
+                }
+                *o = sum / n;
             }
         });
     out
@@ -265,6 +361,35 @@ mod tests {
     }
 
     #[test]
+    fn hollows_see_less_sky_than_open_ground() {
+        // A pit 0.4 m deep and 0.4 m wide in flat ground; sun below the horizon: sky only.
+        let mut t = flat(80, 80, 0.025, 0.25);
+        for row in 32..48 {
+            for col in 32..48 {
+                *t.height.at_mut(col, row) = -0.4;
+            }
+        }
+        let sun = Sun {
+            azimuth_deg: 0.0,
+            elevation_deg: -5.0,
+        };
+        let cfg = ShadingConfig::default();
+        let g = shade(&t, &sun, &cfg);
+        let open = 0.25 * cfg.sky_fraction as f32;
+        assert!((g.at(5, 5) - open).abs() < 1e-6);
+        let bottom = g.at(40, 40);
+        assert!(
+            bottom < 0.8 * open && bottom >= 0.3 * open - 1e-6,
+            "{bottom} vs {open}"
+        );
+        let off = ShadingConfig {
+            sky_occlusion_radius_m: 0.0,
+            ..Default::default()
+        };
+        assert!((shade(&t, &sun, &off).at(40, 40) - open).abs() < 1e-6);
+    }
+
+    #[test]
     fn shadows_are_never_black_and_sun_below_horizon_leaves_sky() {
         let mut t = flat(50, 50, 0.05, 0.2);
         for row in 0..50 {
@@ -284,7 +409,11 @@ mod tests {
                 &cfg,
             );
             let min = g.data.iter().cloned().fold(f32::MAX, f32::min);
-            assert!(min >= 0.2 * 0.5 * cfg.sky_fraction as f32, "el {el}: {min}");
+            // Worst case: a vertical face (half the sky) at the bottom of a deep hollow (0.3).
+            assert!(
+                min >= 0.2 * 0.5 * 0.3 * cfg.sky_fraction as f32,
+                "el {el}: {min}"
+            );
             if el < 0.0 {
                 let max = g.data.iter().cloned().fold(0.0, f32::max);
                 assert!(max <= 0.2 * cfg.sky_fraction as f32 + 1e-6);
