@@ -116,18 +116,19 @@ impl Crater {
     /// exactly `depth_ratio · D` below it.
     #[inline]
     pub fn profile(&self, rho: f64) -> f64 {
-        self.profile_with_rim(rho, 1.0)
+        self.profile_with_rim(rho, 1.0 / rho, 1.0)
     }
 
+    /// The profile given ρ and 1/ρ (the stamping loop has the reciprocal for free).
     #[inline]
-    fn profile_with_rim(&self, rho: f64, rim_scale: f64) -> f64 {
+    fn profile_with_rim(&self, rho: f64, inv_rho: f64, rim_scale: f64) -> f64 {
         let k = self.rim_softness_m.max(1e-9);
         let crest = self.rim_height_m * rim_scale;
         let hr = crest + 0.25 * k;
         let depth = self.depth_ratio * self.diameter_m + 0.25 * k;
-        let rc = rho.max(0.2);
+        let ic = inv_rho.min(5.0);
         let taper = 1.0 - smoothstep(2.0, EJECTA_REACH, rho);
-        let outer = hr / (rc * rc * rc) * taper;
+        let outer = hr * ic * ic * ic * taper;
         if rho >= 2.0 {
             // The bowl is above the ejecta by more than the blend width here (depth ≥ 0.05 D,
             // k ≤ 0.08 D): skip the costly power.
@@ -143,14 +144,19 @@ impl Crater {
 
 #[inline]
 pub(crate) fn smoothstep(e0: f64, e1: f64, x: f64) -> f64 {
-    let t = ((x - e0) / (e1 - e0)).clamp(0.0, 1.0);
+    // Multiply by the reciprocal: with constant edges it folds to one multiplication.
+    let t = ((x - e0) * (1.0 / (e1 - e0))).clamp(0.0, 1.0);
     t * t * (3.0 - 2.0 * t)
 }
 
 /// Polynomial smooth minimum: equals min(a, b) when |a − b| ≥ k, lowers the junction by k/4.
 #[inline]
 fn smin(a: f64, b: f64, k: f64) -> f64 {
-    let h = (k - (a - b).abs()).max(0.0) / k;
+    let d = (a - b).abs();
+    if d >= k {
+        return a.min(b);
+    }
+    let h = (k - d) / k;
     a.min(b) - h * h * k * 0.25
 }
 
@@ -269,16 +275,16 @@ pub fn stamp_crater(terrain: &mut Terrain, crater: &Crater) {
 
     // Reference plane of the pre-impact surface from the old heights on the rim circle.
     const RING: usize = 16;
-    let (mut m, mut gx, mut gy) = (0.0, 0.0, 0.0);
+    let (mut mean, mut gx, mut gy) = (0.0, 0.0, 0.0);
     for i in 0..RING {
         let phi = std::f64::consts::TAU * i as f64 / RING as f64;
         let (s, c) = phi.sin_cos();
         let z = terrain.height_at(crater.x + r * c, crater.y + r * s);
-        m += z;
+        mean += z;
         gx += z * c;
         gy += z * s;
     }
-    m /= RING as f64;
+    mean /= RING as f64;
     gx *= 2.0 / (RING as f64 * r);
     gy *= 2.0 / (RING as f64 * r);
 
@@ -295,26 +301,29 @@ pub fn stamp_crater(terrain: &mut Terrain, crater: &Crater) {
                 continue;
             }
             let rr = rr2.sqrt();
+            let inv_rr = if rr > 1e-12 { 1.0 / rr } else { 1e12 };
             let q = rr * inv_r;
             // Shape harmonics fade towards the centre, where directions converge.
-            let (rho, rim_scale) = if q < 0.15 {
-                (q, 1.0)
+            let (stretch, rim_scale) = if q < 0.15 {
+                (1.0, 1.0)
             } else {
-                let terms = angular_terms(dx / rr, dy / rr);
+                let terms = angular_terms(dx * inv_rr, dy * inv_rr);
                 let fade = smoothstep(0.15, 0.8, q);
                 (
-                    q / (1.0 + fade * harmonics(&crater.shape, &terms)),
+                    1.0 + fade * harmonics(&crater.shape, &terms),
                     1.0 + fade * harmonics(&crater.rim_wobble, &terms),
                 )
             };
+            let rho = q / stretch;
             if rho > EJECTA_REACH {
                 continue;
             }
-            let prof = crater.profile_with_rim(rho, rim_scale);
+            let inv_rho = stretch * r * inv_rr;
+            let prof = crater.profile_with_rim(rho, inv_rho, rim_scale);
             let old = hrow[col] as f64;
             hrow[col] = if rho < 1.05 {
                 let erase = 1.0 - smoothstep(0.75, 1.05, rho);
-                let plane = m + gx * dx + gy * dy;
+                let plane = mean + gx * dx + gy * dy;
                 (old + prof + erase * (plane - old)) as f32
             } else {
                 (old + prof) as f32
@@ -324,7 +333,7 @@ pub fn stamp_crater(terrain: &mut Terrain, crater: &Crater) {
                     (1.0, 1.0 - smoothstep(0.3, 0.85, rho))
                 } else {
                     let t = 1.0 - smoothstep(2.0, EJECTA_REACH, rho);
-                    (t / (rho * rho * rho), 0.0)
+                    (t * inv_rho * inv_rho * inv_rho, 0.0)
                 };
                 let tone =
                     1.0 + crater.ejecta_tone * ejecta as f32 + crater.floor_tone * floor as f32;

@@ -81,14 +81,15 @@ const GRAD: [[f32; 2]; 32] = [
     [0.995_184_7, -0.098_017_14],
 ];
 
-/// Gradient of a lattice point: only 5 bits are needed, so one multiply-xorshift round
-/// over the combined coordinates is enough (and is the hot path of all terrain noise).
+const KX: u64 = 0x9e37_79b9_7f4a_7c15;
+const KY: u64 = 0xc2b2_ae3d_27d4_eb4f;
+
+/// Gradient of a lattice point from its premixed coordinates `seed ^ ix·KX ^ iy·KY`: only
+/// 5 bits are needed, so one multiply-xorshift round is enough (this is the hot path of
+/// all terrain noise).
 #[inline]
-fn grad_dot(seed: u64, ix: i64, iy: i64, fx: f32, fy: f32) -> f32 {
-    let mut h = seed
-        ^ (ix as u64).wrapping_mul(0x9e37_79b9_7f4a_7c15)
-        ^ (iy as u64).wrapping_mul(0xc2b2_ae3d_27d4_eb4f);
-    h = (h ^ (h >> 29)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+fn grad_dot(mixed: u64, fx: f32, fy: f32) -> f32 {
+    let mut h = (mixed ^ (mixed >> 29)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
     h ^= h >> 32;
     let g = GRAD[(h >> 59) as usize];
     g[0] * fx + g[1] * fy
@@ -105,10 +106,15 @@ fn fade(t: f32) -> f32 {
 pub fn gradient_noise(seed: u64, x: f64, y: f64) -> f32 {
     let (ix, iy) = (fast_floor(x), fast_floor(y));
     let (fx, fy) = ((x - ix as f64) as f32, (y - iy as f64) as f32);
-    let n00 = grad_dot(seed, ix, iy, fx, fy);
-    let n10 = grad_dot(seed, ix + 1, iy, fx - 1.0, fy);
-    let n01 = grad_dot(seed, ix, iy + 1, fx, fy - 1.0);
-    let n11 = grad_dot(seed, ix + 1, iy + 1, fx - 1.0, fy - 1.0);
+    // (i + 1)·K = i·K + K in wrapping arithmetic: two multiplications for four corners.
+    let x0 = (ix as u64).wrapping_mul(KX);
+    let x1 = x0.wrapping_add(KX);
+    let y0 = (iy as u64).wrapping_mul(KY);
+    let (y0, y1) = (seed ^ y0, seed ^ y0.wrapping_add(KY));
+    let n00 = grad_dot(x0 ^ y0, fx, fy);
+    let n10 = grad_dot(x1 ^ y0, fx - 1.0, fy);
+    let n01 = grad_dot(x0 ^ y1, fx, fy - 1.0);
+    let n11 = grad_dot(x1 ^ y1, fx - 1.0, fy - 1.0);
     let (u, v) = (fade(fx), fade(fy));
     let a = n00 + (n10 - n00) * u;
     let b = n01 + (n11 - n01) * u;
