@@ -6,7 +6,8 @@
 //! ```
 //! Writes `<out>/terrain_<kind>.png` (grey, as a camera sees radiance) and
 //! `<out>/terrain_<kind>_color.png` (tinted for a human eye). `--timing` instead generates and
-//! shades a 4800 × 3200-cell area (120 m × 80 m at 2.5 cm) per kind and prints the times.
+//! shades a 4800 × 3200-cell area (120 m × 80 m at 2.5 cm; `--width`, `--height` change it)
+//! per kind (`--kind crater` picks one) and prints the times.
 
 use std::time::Instant;
 
@@ -32,6 +33,10 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         elevation_deg: arg(&args, "--sun-el", 30.0),
     };
     let timing = args.iter().any(|a| a == "--timing");
+    let only: Option<String> = args
+        .iter()
+        .position(|a| a == "--kind")
+        .and_then(|i| args.get(i + 1).cloned());
     let cfg = TerrainConfig {
         cell_m: arg(&args, "--cell", 0.025),
         ..Default::default()
@@ -43,8 +48,17 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         TerrainKind::Mountain,
     ];
     for kind in kinds {
+        if only
+            .as_deref()
+            .is_some_and(|k| !format!("{kind:?}").eq_ignore_ascii_case(k))
+        {
+            continue;
+        }
         let (w, h) = if timing {
-            (4800, 3200)
+            (
+                arg(&args, "--width", 4800usize),
+                arg(&args, "--height", 3200usize),
+            )
         } else {
             let n = (size_m / cfg.cell_m).round() as usize;
             (n, n)

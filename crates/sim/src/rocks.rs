@@ -165,6 +165,22 @@ impl Rock {
         }
     }
 
+    /// A pebble below the cell size: only its footprint (aspect) and tint matter.
+    pub fn pebble(x: f64, y: f64, d: f64, rng: &mut ChaCha8Rng) -> Self {
+        Self {
+            x,
+            y,
+            diameter_m: d,
+            height_m: 0.5 * d,
+            aspect: rng.random_range(0.6..1.0),
+            heading: 0.0,
+            facets: [[0.0; 4]; FACETS],
+            tilt: [0.0; 2],
+            roundness: 1.0,
+            albedo_factor: rng.random_range(0.6..1.15),
+        }
+    }
+
     /// Height of the rock above the ground at rock-frame coordinates normalised by the
     /// semi-axes (0 outside the footprint).
     #[inline]
@@ -243,6 +259,9 @@ pub struct RockField {
     pub sampler: RockSampler,
     /// Mean height over diameter.
     pub height_ratio: f64,
+    /// Rocks narrower than this only tint the albedo ([`stamp_rock`]'s `min_3d_m`), so
+    /// only their tint and footprint are drawn.
+    pub shaped_from_m: f64,
 }
 
 impl RockField {
@@ -267,11 +286,15 @@ impl RockField {
             let d = self.sampler.diameter(rng.random());
             let x = rng.random_range(x0..x1);
             let y = rng.random_range(y0..y1);
-            let accept: f64 = rng.random();
-            let rock = Rock::random(x, y, d, self.height_ratio, rng);
-            if accept < keep(x, y) {
-                sink(&rock);
+            if rng.random::<f64>() >= keep(x, y) {
+                continue;
             }
+            let rock = if d < self.shaped_from_m {
+                Rock::pebble(x, y, d, rng)
+            } else {
+                Rock::random(x, y, d, self.height_ratio, rng)
+            };
+            sink(&rock);
         }
     }
 }
@@ -326,6 +349,7 @@ mod tests {
             let field = RockField {
                 sampler: RockSampler::new(sfd, dmin, dmax),
                 height_ratio: 0.5,
+                shaped_from_m: 0.04,
             };
             let side = 150.0;
             let mut rng = ChaCha8Rng::seed_from_u64(seed as u64 + 11);

@@ -333,6 +333,7 @@ pub fn generate_terrain(
                 cfg.rock_max_diameter_m,
             ),
             height_ratio: cfg.rock_height_ratio,
+            shaped_from_m: min_3d,
         };
         let margin = 0.6 * cfg.rock_max_diameter_m;
         let mut rng = ChaCha8Rng::seed_from_u64(derive_seed(seed, stream::ROCKS));
