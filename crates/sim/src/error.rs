@@ -7,16 +7,27 @@ use std::path::PathBuf;
 pub enum SimError {
     /// A configuration value is out of its valid range.
     #[error("invalid configuration: {field} = {value} ({reason})")]
-    InvalidConfig { field: &'static str, value: String, reason: String },
+    InvalidConfig {
+        field: &'static str,
+        value: String,
+        reason: String,
+    },
     /// A file or folder could not be read or written.
     #[error("{path}: {source}")]
-    Io { path: PathBuf, source: std::io::Error },
+    Io {
+        path: PathBuf,
+        source: std::io::Error,
+    },
     /// An image could not be encoded or written.
     #[error("{path}: {message}")]
     Image { path: PathBuf, message: String },
     /// A dataset file (camera.yaml, map.toml, …) could not be parsed.
     #[error("{path}:{line}: {message}")]
-    Parse { path: PathBuf, line: usize, message: String },
+    Parse {
+        path: PathBuf,
+        line: usize,
+        message: String,
+    },
     /// The output folder already holds files and overwriting was not allowed.
     #[error("output directory {path} is not empty; refusing to overwrite it")]
     OutputNotEmpty { path: PathBuf },
