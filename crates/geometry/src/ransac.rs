@@ -43,6 +43,16 @@ impl Default for RansacConfig {
 }
 
 impl RansacConfig {
+    /// Fails with [`GeometryError::NoConsensus`] when `inliers` is below `min_inliers` (and
+    /// never below the minimal sample); estimators call it again after refining on inliers.
+    pub fn check_consensus(&self, inliers: usize, sample_size: usize) -> Result<()> {
+        let required = self.min_inliers.max(sample_size);
+        if inliers < required {
+            return Err(GeometryError::NoConsensus { inliers, required });
+        }
+        Ok(())
+    }
+
     /// Checks ranges; every estimator calls this before sampling.
     pub fn validate(&self) -> Result<()> {
         if !(self.threshold.is_finite() && self.threshold > 0.0) {
@@ -162,20 +172,14 @@ pub fn ransac<E: Estimator>(
             }
         }
     }
-    let required = config.min_inliers.max(E::SAMPLE_SIZE);
     let Some((_, model, _)) = best else {
         return Err(GeometryError::NoConsensus {
             inliers: 0,
-            required,
+            required: config.min_inliers.max(E::SAMPLE_SIZE),
         });
     };
     let inliers = inliers_of(estimator, &model, t2);
-    if inliers.len() < required {
-        return Err(GeometryError::NoConsensus {
-            inliers: inliers.len(),
-            required,
-        });
-    }
+    config.check_consensus(inliers.len(), E::SAMPLE_SIZE)?;
     Ok(RansacResult {
         model,
         inliers,

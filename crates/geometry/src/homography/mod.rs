@@ -138,7 +138,6 @@ pub fn estimate_homography(
     let est = HomographyEstimator::new(src, dst)?;
     let found = ransac(&est, &cfg.ransac)?;
     let t2 = cfg.ransac.threshold * cfg.ransac.threshold;
-    let required = cfg.ransac.min_inliers.max(HomographyEstimator::SAMPLE_SIZE);
 
     let mut h = est.fit_all(&found.inliers).unwrap_or(found.model.h);
     let mut inliers = model_inliers(&est, &h, t2).unwrap_or_else(|| found.inliers.clone());
@@ -171,12 +170,8 @@ pub fn estimate_homography(
             fit_set = inliers.clone();
         }
     }
-    if inliers.len() < required {
-        return Err(GeometryError::NoConsensus {
-            inliers: inliers.len(),
-            required,
-        });
-    }
+    cfg.ransac
+        .check_consensus(inliers.len(), HomographyEstimator::SAMPLE_SIZE)?;
     let model = HomographyModel::new(h)
         .ok_or_else(|| GeometryError::Degenerate("estimated homography is singular".into()))?;
     let rms_error = (inliers

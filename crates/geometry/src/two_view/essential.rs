@@ -221,16 +221,9 @@ pub fn estimate_essential(
             }
         }
     }
-    let required = config
+    config
         .ransac
-        .min_inliers
-        .max(EssentialEstimator::SAMPLE_SIZE);
-    if inliers.len() < required {
-        return Err(GeometryError::NoConsensus {
-            inliers: inliers.len(),
-            required,
-        });
-    }
+        .check_consensus(inliers.len(), EssentialEstimator::SAMPLE_SIZE)?;
     debug!(
         inliers = inliers.len(),
         total = x1.len(),

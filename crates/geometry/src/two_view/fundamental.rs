@@ -354,16 +354,9 @@ pub fn estimate_fundamental(
             break;
         }
     }
-    let required = config
+    config
         .ransac
-        .min_inliers
-        .max(FundamentalEstimator::SAMPLE_SIZE);
-    if inliers.len() < required {
-        return Err(GeometryError::NoConsensus {
-            inliers: inliers.len(),
-            required,
-        });
-    }
+        .check_consensus(inliers.len(), FundamentalEstimator::SAMPLE_SIZE)?;
     debug!(
         inliers = inliers.len(),
         total = x1.len(),
