@@ -1,4 +1,9 @@
 //! Relative localisation (paper §III-C): ORB-SLAM2-style monocular SLAM whose local bundle
 //! adjustment accepts confidence-weighted global-position factors.
 //!
-//! Stage boundary only for now: tracking and mapping arrive with issue #6.
+//! Built in stages (issue #6): ORB features and the bundle adjustment first, then the map,
+//! tracking and local mapping on top of them.
+
+pub mod error;
+
+pub use error::{Result, SlamError};

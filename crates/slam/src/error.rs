@@ -1,0 +1,40 @@
+//! Errors of the SLAM crate.
+
+use std::path::PathBuf;
+
+/// Everything that can go wrong in feature extraction, tracking, mapping or optimisation.
+#[derive(Debug, thiserror::Error)]
+pub enum SlamError {
+    /// A configuration value is out of its valid range.
+    #[error("invalid configuration: {field} = {value} ({reason})")]
+    InvalidConfig {
+        field: &'static str,
+        value: String,
+        reason: &'static str,
+    },
+    /// An image has a size the stage cannot use.
+    #[error("image of {width}x{height} px is too small: {reason}")]
+    ImageTooSmall {
+        width: u32,
+        height: u32,
+        reason: &'static str,
+    },
+    /// An input value is NaN or infinite.
+    #[error("non-finite input: {0}")]
+    NonFinite(&'static str),
+    /// An optimisation problem is malformed (unknown variable, empty problem, ...).
+    #[error("invalid problem: {0}")]
+    InvalidProblem(String),
+    /// A geometric estimation failed.
+    #[error(transparent)]
+    Geometry(#[from] jointloc_geometry::GeometryError),
+    /// A file could not be read or written.
+    #[error("{path}: {source}")]
+    Io {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+}
+
+/// Result alias of the SLAM crate.
+pub type Result<T, E = SlamError> = std::result::Result<T, E>;
