@@ -4,3 +4,4 @@
 pub mod error;
 
 pub use error::{FeaturesError, Result};
+pub mod pth;
