@@ -3,6 +3,7 @@
 //! One subcommand per file; each exposes `Args` (clap) and `run`.
 
 mod eval;
+mod models;
 mod sim;
 
 use clap::{Parser, Subcommand};
@@ -22,6 +23,8 @@ struct Cli {
 enum Command {
     /// APE/RPE of a trajectory against ground truth (same numbers as evo_ape / evo_rpe).
     Eval(eval::Args),
+    /// Install (`fetch`) or show (`list`) the pretrained weights and the ONNX Runtime library.
+    Models(models::Args),
     /// Generate a simulated Mars dataset: terrain, satellite map + tiles, UAV images, ground truth.
     Sim(sim::Args),
 }
@@ -35,6 +38,7 @@ fn main() -> std::process::ExitCode {
         .init();
     let result = match cli.command {
         Command::Eval(args) => eval::run(args),
+        Command::Models(args) => models::run(args),
         Command::Sim(args) => sim::run(args),
     };
     match result {
