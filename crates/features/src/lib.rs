@@ -8,8 +8,11 @@
 
 pub mod engine;
 pub mod error;
+pub mod graph_cache;
 pub mod models;
 pub mod onnx;
 pub mod pth;
+pub mod types;
 
 pub use error::{FeaturesError, Result};
+pub use types::{Detector, Features, Matcher, Matches};
