@@ -9,6 +9,7 @@
 pub mod engine;
 pub mod error;
 pub mod graph_cache;
+pub mod lightglue;
 pub mod models;
 pub mod onnx;
 pub mod pth;
