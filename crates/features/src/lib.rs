@@ -6,6 +6,7 @@
 //! - [`engine`] runs them (ONNX Runtime, loaded at run time);
 //! - [`models`] fetches and verifies weights and the runtime library.
 
+pub mod aliked;
 pub mod engine;
 pub mod error;
 pub mod graph_cache;
