@@ -4,6 +4,7 @@
 //! Built in stages (issue #6): ORB features and the bundle adjustment first, then the map,
 //! tracking and local mapping on top of them.
 
+pub mod ba;
 pub mod error;
 
 pub use error::{Result, SlamError};

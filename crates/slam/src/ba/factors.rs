@@ -1,0 +1,234 @@
+//! Residuals and analytic Jacobians of the bundle-adjustment factors.
+//!
+//! Pose updates are left-multiplied: `T_cw ← exp(δ) · T_cw` with `δ = [ρ; φ]` and `exp` the
+//! geometry crate's [`se3_exp`](jointloc_geometry::pose::se3_exp) (translation first), the same
+//! convention as the PnP refinement. A camera-frame point `p_c = R X + t` then moves to first
+//! order by `ρ + φ × p_c`, and the camera centre `C = −Rᵀt` by `−Rᵀρ` (a rotation about the
+//! camera's own centre leaves the centre in place).
+
+use jointloc_geometry::{PinholeCamera, Sim3, WorldToCamera, pose::skew};
+use nalgebra::{Matrix2x3, Matrix3, Matrix3x6, Point2, Point3, SMatrix, Vector2, Vector3};
+
+/// 2×6 Jacobian of a pixel residual with respect to a pose update `δ = [ρ; φ]`.
+pub type Matrix2x6 = SMatrix<f64, 2, 6>;
+
+/// Reprojection residual `e = π(R X + t) − z` with `∂e/∂δ` (2×6) and `∂e/∂X` (2×3).
+/// `None` when the point is not in front of the camera.
+pub fn reprojection_residual(
+    intrinsics: &PinholeCamera,
+    pose: &WorldToCamera,
+    point: &Vector3<f64>,
+    pixel: &Point2<f64>,
+) -> Option<(Vector2<f64>, Matrix2x6, Matrix2x3<f64>)> {
+    reprojection(
+        intrinsics,
+        &pose.rotation_matrix(),
+        &pose.translation(),
+        point,
+        pixel,
+    )
+}
+
+/// [`reprojection_residual`] with the rotation already as a matrix (the solver's hot path).
+#[inline]
+pub(crate) fn reprojection(
+    intrinsics: &PinholeCamera,
+    rotation: &Matrix3<f64>,
+    translation: &Vector3<f64>,
+    point: &Vector3<f64>,
+    pixel: &Point2<f64>,
+) -> Option<(Vector2<f64>, Matrix2x6, Matrix2x3<f64>)> {
+    let pc = rotation * point + translation;
+    let (uv, jpi) = intrinsics.project_with_jacobian(&Point3::from(pc))?;
+    let residual = uv - pixel;
+    // ∂p_c/∂δ = [I, −[p_c]×]  ⇒  ∂e/∂δ = [Jπ, −Jπ [p_c]×].
+    let mut jac_pose = Matrix2x6::zeros();
+    jac_pose.fixed_view_mut::<2, 3>(0, 0).copy_from(&jpi);
+    jac_pose
+        .fixed_view_mut::<2, 3>(0, 3)
+        .copy_from(&(-jpi * skew(&pc)));
+    Some((residual, jac_pose, jpi * rotation))
+}
+
+/// Only the residual of [`reprojection`], for cost evaluation.
+#[inline]
+pub(crate) fn reprojection_error(
+    intrinsics: &PinholeCamera,
+    rotation: &Matrix3<f64>,
+    translation: &Vector3<f64>,
+    point: &Vector3<f64>,
+    pixel: &Point2<f64>,
+) -> Option<Vector2<f64>> {
+    let pc = rotation * point + translation;
+    intrinsics.project(&Point3::from(pc)).map(|uv| uv - pixel)
+}
+
+/// The camera centre `C = −Rᵀt` of a world-to-camera transform.
+pub fn camera_centre(pose: &WorldToCamera) -> Vector3<f64> {
+    -(pose.rotation().inverse() * pose.translation())
+}
+
+/// Global-position residual `r = S · C − P_G` and `∂r/∂δ = [−s R_S Rᵀ, 0]` (3×6).
+pub fn global_position_residual(
+    pose: &WorldToCamera,
+    slam_to_world: &Sim3,
+    world_position: &Vector3<f64>,
+) -> (Vector3<f64>, Matrix3x6<f64>) {
+    global_position(
+        &pose.rotation_matrix(),
+        &pose.translation(),
+        slam_to_world,
+        world_position,
+    )
+}
+
+/// [`global_position_residual`] with the rotation as a matrix.
+pub(crate) fn global_position(
+    rotation: &Matrix3<f64>,
+    translation: &Vector3<f64>,
+    slam_to_world: &Sim3,
+    world_position: &Vector3<f64>,
+) -> (Vector3<f64>, Matrix3x6<f64>) {
+    let rt = rotation.transpose();
+    let centre = -(rt * translation);
+    let residual = slam_to_world.transform_point(&Point3::from(centre)).coords - world_position;
+    let mut jac = Matrix3x6::zeros();
+    jac.fixed_view_mut::<3, 3>(0, 0)
+        .copy_from(&(-slam_to_world.scale * (slam_to_world.rotation_matrix() * rt)));
+    (residual, jac)
+}
+
+/// Camera-centre prior residual `r = C − C_prior` with `∂r/∂δ = [−Rᵀ, 0]`.
+pub(crate) fn position_prior(
+    rotation: &Matrix3<f64>,
+    translation: &Vector3<f64>,
+    prior: &Vector3<f64>,
+) -> (Vector3<f64>, Matrix3x6<f64>) {
+    let rt = rotation.transpose();
+    let mut jac = Matrix3x6::zeros();
+    jac.fixed_view_mut::<3, 3>(0, 0).copy_from(&(-rt));
+    (-(rt * translation) - prior, jac)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::{DMatrix, UnitQuaternion, Vector6};
+    use rand::{Rng, SeedableRng};
+    use rand_chacha::ChaCha8Rng;
+
+    const H: f64 = 1e-6;
+
+    fn perturbed(pose: &WorldToCamera, d: &Vector6<f64>) -> WorldToCamera {
+        WorldToCamera(WorldToCamera::exp(d).0 * pose.0)
+    }
+
+    /// ‖A − B‖_F / max(‖B‖_F, 1).
+    fn rel_err(a: &DMatrix<f64>, b: &DMatrix<f64>) -> f64 {
+        (a - b).norm() / b.norm().max(1.0)
+    }
+
+    fn random_pose(rng: &mut ChaCha8Rng) -> WorldToCamera {
+        // A camera ~50 m above the origin, looking down, with a random tilt of up to ~10°.
+        let down = UnitQuaternion::from_euler_angles(std::f64::consts::PI, 0.0, 0.0);
+        let tilt = UnitQuaternion::from_euler_angles(
+            rng.random_range(-0.2..0.2),
+            rng.random_range(-0.2..0.2),
+            rng.random_range(-3.0..3.0),
+        );
+        let c = Vector3::new(
+            rng.random_range(-20.0..20.0),
+            rng.random_range(-20.0..20.0),
+            rng.random_range(40.0..60.0),
+        );
+        let r_cw = (down * tilt).inverse();
+        WorldToCamera::from_rotation_translation(r_cw, -(r_cw * c))
+    }
+
+    #[test]
+    fn reprojection_jacobians_match_central_differences() {
+        let cam = PinholeCamera::ideal(400.0, 500, 500);
+        for seed in 0..5 {
+            let mut rng = ChaCha8Rng::seed_from_u64(seed);
+            for _ in 0..20 {
+                let pose = random_pose(&mut rng);
+                // A point on the ground inside the view.
+                let c = camera_centre(&pose);
+                let ray = pose.rotation().inverse()
+                    * Vector3::new(
+                        rng.random_range(-0.5..0.5),
+                        rng.random_range(-0.5..0.5),
+                        1.0,
+                    );
+                let x = c + ray * (rng.random_range(30.0..70.0) / ray.norm());
+                let z = Point2::new(rng.random_range(0.0..500.0), rng.random_range(0.0..500.0));
+                let (e, jp, jx) = reprojection_residual(&cam, &pose, &x, &z).unwrap();
+                let mut num_p = DMatrix::zeros(2, 6);
+                for k in 0..6 {
+                    let mut d = Vector6::zeros();
+                    d[k] = H;
+                    let ep = reprojection_residual(&cam, &perturbed(&pose, &d), &x, &z).unwrap();
+                    let em = reprojection_residual(&cam, &perturbed(&pose, &-d), &x, &z).unwrap();
+                    num_p.set_column(k, &((ep.0 - em.0) / (2.0 * H)));
+                }
+                let mut num_x = DMatrix::zeros(2, 3);
+                for k in 0..3 {
+                    let mut d = Vector3::zeros();
+                    d[k] = H;
+                    let ep = reprojection_residual(&cam, &pose, &(x + d), &z).unwrap();
+                    let em = reprojection_residual(&cam, &pose, &(x - d), &z).unwrap();
+                    num_x.set_column(k, &((ep.0 - em.0) / (2.0 * H)));
+                }
+                let ana_p = DMatrix::from_column_slice(2, 6, jp.as_slice());
+                let ana_x = DMatrix::from_column_slice(2, 3, jx.as_slice());
+                assert!(rel_err(&num_p, &ana_p) < 1e-6, "{num_p} vs {ana_p}");
+                assert!(rel_err(&num_x, &ana_x) < 1e-6, "{num_x} vs {ana_x}");
+                assert!(e.iter().all(|v| v.is_finite()));
+            }
+        }
+    }
+
+    #[test]
+    fn global_position_jacobian_matches_central_differences() {
+        for seed in 0..5 {
+            let mut rng = ChaCha8Rng::seed_from_u64(100 + seed);
+            for _ in 0..20 {
+                let pose = random_pose(&mut rng);
+                let s = Sim3::new(
+                    rng.random_range(0.3..3.0),
+                    UnitQuaternion::from_euler_angles(
+                        rng.random_range(-1.0..1.0),
+                        rng.random_range(-1.0..1.0),
+                        rng.random_range(-3.0..3.0),
+                    ),
+                    Vector3::new(
+                        rng.random_range(-100.0..100.0),
+                        rng.random_range(-100.0..100.0),
+                        rng.random_range(-10.0..10.0),
+                    ),
+                );
+                let pg = Vector3::new(rng.random_range(-50.0..50.0), 3.0, 60.0);
+                let (r, j) = global_position_residual(&pose, &s, &pg);
+                let expected = s
+                    .transform_point(&Point3::from(camera_centre(&pose)))
+                    .coords
+                    - pg;
+                assert!((r - expected).norm() < 1e-9);
+                let mut num = DMatrix::zeros(3, 6);
+                for k in 0..6 {
+                    let mut d = Vector6::zeros();
+                    d[k] = H;
+                    let rp = global_position_residual(&perturbed(&pose, &d), &s, &pg).0;
+                    let rm = global_position_residual(&perturbed(&pose, &-d), &s, &pg).0;
+                    num.set_column(k, &((rp - rm) / (2.0 * H)));
+                }
+                let ana = DMatrix::from_column_slice(3, 6, j.as_slice());
+                assert!(rel_err(&num, &ana) < 1e-6, "{num} vs {ana}");
+                // The position prior is the same factor with the identity similarity.
+                let (rp, jp) = position_prior(&pose.rotation_matrix(), &pose.translation(), &pg);
+                let (rg, jg) = global_position_residual(&pose, &Sim3::identity(), &pg);
+                assert!((rp - rg).norm() < 1e-9 && (jp - jg).norm() < 1e-12);
+            }
+        }
+    }
+}
