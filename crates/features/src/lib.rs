@@ -7,6 +7,7 @@
 //! - [`models`] fetches and verifies weights and the runtime library.
 
 pub mod aliked;
+pub mod disk;
 pub mod engine;
 pub mod error;
 pub mod graph_cache;
@@ -14,6 +15,7 @@ pub mod lightglue;
 pub mod models;
 pub mod onnx;
 pub mod pth;
+pub mod superpoint;
 pub mod types;
 
 pub use error::{FeaturesError, Result};
