@@ -25,6 +25,9 @@ pub enum SlamError {
     /// An optimisation problem is malformed (unknown variable, empty problem, ...).
     #[error("invalid problem: {0}")]
     InvalidProblem(String),
+    /// Monocular initialisation did not find a reliable two-view reconstruction.
+    #[error("initialisation failed: {reason}")]
+    InitializationFailed { reason: String },
     /// A geometric estimation failed.
     #[error(transparent)]
     Geometry(#[from] jointloc_geometry::GeometryError),

@@ -6,5 +6,6 @@
 
 pub mod ba;
 pub mod error;
+pub mod initializer;
 
 pub use error::{Result, SlamError};
