@@ -19,6 +19,13 @@ pub enum SlamError {
         height: u32,
         reason: &'static str,
     },
+    /// An image buffer does not hold width × height pixels.
+    #[error("image buffer of {len} bytes does not match {width}x{height} px")]
+    InvalidImage {
+        width: usize,
+        height: usize,
+        len: usize,
+    },
     /// An input value is NaN or infinite.
     #[error("non-finite input: {0}")]
     NonFinite(&'static str),

@@ -6,6 +6,7 @@
 
 pub mod ba;
 pub mod error;
+pub mod orb;
 pub mod initializer;
 
 pub use error::{Result, SlamError};

@@ -1,0 +1,293 @@
+//! FAST-9 corners (Rosten & Drummond): a pixel is a corner at threshold `t` when 9 contiguous
+//! pixels of the radius-3 Bresenham circle are all brighter than centre + t or all darker than
+//! centre − t. Detection in cells as ORB-SLAM2: each cell keeps its corners at the initial
+//! threshold, or, when it has none, those at the minimum threshold.
+//!
+//! The score of a corner is the largest `t` for which it is still a corner, plus one
+//! (`max over arcs of the smallest |difference| on the arc`), so a corner at `t` has score > t.
+//! One pass at the minimum threshold therefore serves both thresholds, and a 3×3 non-maximum
+//! suppression on that score picks the same corners at either threshold.
+
+/// The 16 circle offsets (dx, dy), clockwise from 12 o'clock (y down).
+pub const CIRCLE: [(isize, isize); 16] = [
+    (0, -3),
+    (1, -3),
+    (2, -2),
+    (3, -1),
+    (3, 0),
+    (3, 1),
+    (2, 2),
+    (1, 3),
+    (0, 3),
+    (-1, 3),
+    (-2, 2),
+    (-3, 1),
+    (-3, 0),
+    (-3, -1),
+    (-2, -2),
+    (-1, -3),
+];
+
+/// Contiguous pixels required (FAST-9).
+const ARC: usize = 9;
+
+/// A corner after non-maximum suppression, in level pixels.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Corner {
+    pub x: u32,
+    pub y: u32,
+    /// FAST score (> threshold it was accepted at).
+    pub score: u8,
+}
+
+/// True when the 16-bit circular mask has `ARC` contiguous set bits.
+#[inline]
+fn has_arc(mask: u32) -> bool {
+    let m = mask | (mask << 16);
+    let r2 = m & (m >> 1);
+    let r4 = r2 & (r2 >> 2);
+    let r8 = r4 & (r4 >> 4);
+    let r9 = r8 & (m >> 8);
+    r9 & 0xFFFF != 0
+}
+
+/// FAST score of a pixel known to be a corner: max over arcs and both polarities of the
+/// smallest signed difference along the arc.
+#[inline]
+fn score_of(d: &[i16; 16]) -> u8 {
+    let mut best = 0i16;
+    for s in 0..16 {
+        let (mut lo, mut hi) = (i16::MAX, i16::MAX);
+        for k in 0..ARC {
+            let v = d[(s + k) & 15];
+            lo = lo.min(v);
+            hi = hi.min(-v);
+        }
+        best = best.max(lo).max(hi);
+    }
+    best.clamp(0, 255) as u8
+}
+
+/// Score map of FAST-9 corners at threshold `t` for centres in `[border, w - border)` ×
+/// `[border, h - border)`; 0 elsewhere and at non-corners. `border` must be ≥ 3.
+pub fn score_map(img: &[u8], w: usize, h: usize, border: usize, t: u8) -> Vec<u8> {
+    debug_assert!(border >= 3);
+    let mut scores = vec![0u8; w * h];
+    if w <= 2 * border || h <= 2 * border {
+        return scores;
+    }
+    let offs: [isize; 16] = std::array::from_fn(|k| CIRCLE[k].1 * w as isize + CIRCLE[k].0);
+    let t = t as i16;
+    for y in border..h - border {
+        let row = y * w;
+        for x in border..w - border {
+            let i = row + x;
+            let c = img[i] as i16;
+            let at = |k: usize| img[(i as isize + offs[k]) as usize] as i16;
+            // Any arc of 9 contains two consecutive compass points (0, 4, 8, 12).
+            let (p0, p4, p8, p12) = (at(0), at(4), at(8), at(12));
+            let b = |p: i16| p > c + t;
+            let dk = |p: i16| p < c - t;
+            let bright =
+                (b(p0) && b(p4)) || (b(p4) && b(p8)) || (b(p8) && b(p12)) || (b(p12) && b(p0));
+            let dark = (dk(p0) && dk(p4))
+                || (dk(p4) && dk(p8))
+                || (dk(p8) && dk(p12))
+                || (dk(p12) && dk(p0));
+            if !bright && !dark {
+                continue;
+            }
+            let mut d = [0i16; 16];
+            let (mut mb, mut md) = (0u32, 0u32);
+            for (k, dk) in d.iter_mut().enumerate() {
+                let v = at(k) - c;
+                *dk = v;
+                mb |= ((v > t) as u32) << k;
+                md |= ((v < -t) as u32) << k;
+            }
+            if has_arc(mb) || has_arc(md) {
+                scores[i] = score_of(&d).max(1);
+            }
+        }
+    }
+    scores
+}
+
+/// Non-maximum suppression in 3×3: keeps a non-zero score that is strictly greater than its
+/// earlier (raster-order) neighbours and not smaller than its later ones, so plateaus keep
+/// exactly their first pixel.
+fn is_local_max(scores: &[u8], w: usize, x: usize, y: usize) -> bool {
+    let i = y * w + x;
+    let s = scores[i];
+    if s == 0 {
+        return false;
+    }
+    let before = [i - w - 1, i - w, i - w + 1, i - 1];
+    let after = [i + 1, i + w - 1, i + w, i + w + 1];
+    before.iter().all(|&j| s > scores[j]) && after.iter().all(|&j| s >= scores[j])
+}
+
+/// Corners of one level detected per cell: cells of about `cell_size` px tile the region
+/// `[border, w - border)` × `[border, h - border)`; a cell keeps its local maxima scoring
+/// above `ini_th`, or, if it has none, those above `min_th`.
+pub fn detect_in_cells(
+    img: &[u8],
+    w: usize,
+    h: usize,
+    border: usize,
+    cell_size: usize,
+    ini_th: u8,
+    min_th: u8,
+) -> Vec<Corner> {
+    if w <= 2 * border + 2 || h <= 2 * border + 2 {
+        return Vec::new();
+    }
+    let scores = score_map(img, w, h, border, min_th);
+    let (rw, rh) = (w - 2 * border, h - 2 * border);
+    let n_cols = (rw / cell_size).max(1);
+    let n_rows = (rh / cell_size).max(1);
+    let cw = rw.div_ceil(n_cols);
+    let ch = rh.div_ceil(n_rows);
+    let mut out = Vec::new();
+    let mut cell = Vec::new();
+    for r in 0..n_rows {
+        let y0 = border + r * ch;
+        let y1 = (y0 + ch).min(h - border);
+        for c in 0..n_cols {
+            let x0 = border + c * cw;
+            let x1 = (x0 + cw).min(w - border);
+            cell.clear();
+            let mut any_ini = false;
+            for y in y0..y1 {
+                for x in x0..x1 {
+                    if is_local_max(&scores, w, x, y) {
+                        let score = scores[y * w + x];
+                        any_ini |= score > ini_th;
+                        cell.push(Corner {
+                            x: x as u32,
+                            y: y as u32,
+                            score,
+                        });
+                    }
+                }
+            }
+            if any_ini {
+                out.extend(cell.iter().filter(|k| k.score > ini_th));
+            } else {
+                out.extend_from_slice(&cell);
+            }
+        }
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Brute-force reference: corner at t iff some arc of 9 is all > t or all < −t.
+    fn is_corner_reference(img: &[u8], w: usize, x: usize, y: usize, t: i16) -> bool {
+        let c = img[y * w + x] as i16;
+        let v: Vec<i16> = CIRCLE
+            .iter()
+            .map(|&(dx, dy)| {
+                img[(y as isize + dy) as usize * w + (x as isize + dx) as usize] as i16 - c
+            })
+            .collect();
+        (0..16).any(|s| (0..9).all(|k| v[(s + k) % 16] > t))
+            || (0..16).any(|s| (0..9).all(|k| v[(s + k) % 16] < -t))
+    }
+
+    fn square_image(w: usize, h: usize) -> Vec<u8> {
+        // A bright square on a dark background: its 4 corners are FAST corners.
+        let mut img = vec![40u8; w * h];
+        for y in 20..40 {
+            for x in 20..40 {
+                img[y * w + x] = 200;
+            }
+        }
+        img
+    }
+
+    #[test]
+    fn corners_of_a_square_are_found_and_edges_are_not() {
+        let (w, h) = (60, 60);
+        let img = square_image(w, h);
+        let corners = detect_in_cells(&img, w, h, 4, 30, 20, 7);
+        let pos: Vec<(u32, u32)> = corners.iter().map(|c| (c.x, c.y)).collect();
+        // One detection within 2 px of each of the four corners (an ideal square gives small
+        // plateaus of equal score; the first pixel in raster order is kept), nothing elsewhere.
+        for &(cx, cy) in &[(20, 20), (39, 20), (20, 39), (39, 39)] {
+            assert!(
+                pos.iter()
+                    .any(|&(x, y)| (x as i32 - cx).abs() <= 2 && (y as i32 - cy).abs() <= 2),
+                "corner ({cx}, {cy}) missing in {pos:?}"
+            );
+        }
+        assert_eq!(corners.len(), 4, "{pos:?}");
+        // Straight edges are not corners.
+        let scores = score_map(&img, w, h, 4, 7);
+        assert_eq!(scores[30 * w + 20], 0);
+        assert_eq!(scores[20 * w + 30], 0);
+    }
+
+    #[test]
+    fn score_map_agrees_with_brute_force_on_noise() {
+        // Random texture: every pixel's classification and the score's threshold semantics.
+        let (w, h) = (48, 40);
+        let mut s = 12345u64;
+        let img: Vec<u8> = (0..w * h)
+            .map(|_| {
+                s = s
+                    .wrapping_mul(6364136223846793005)
+                    .wrapping_add(1442695040888963407);
+                (s >> 56) as u8
+            })
+            .collect();
+        for &t in &[7u8, 20, 40] {
+            let scores = score_map(&img, w, h, 3, t);
+            for y in 3..h - 3 {
+                for x in 3..w - 3 {
+                    let want = is_corner_reference(&img, w, x, y, t as i16);
+                    let sc = scores[y * w + x];
+                    assert_eq!(sc > 0, want, "({x}, {y}) t {t}");
+                    if want {
+                        // Score s: a corner at s − 1, not at s.
+                        assert!(is_corner_reference(&img, w, x, y, sc as i16 - 1));
+                        assert!(!is_corner_reference(&img, w, x, y, sc as i16));
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn low_contrast_cells_fall_back_to_the_minimum_threshold() {
+        // Two squares: a strong one in the left cell, a faint one (contrast 12) in the right.
+        let (w, h) = (80, 40);
+        let mut img = vec![100u8; w * h];
+        for y in 14..26 {
+            for x in 10..22 {
+                img[y * w + x] = 200;
+            }
+            for x in 50..62 {
+                img[y * w + x] = 112;
+            }
+        }
+        let corners = detect_in_cells(&img, w, h, 4, 36, 20, 7);
+        let left = corners.iter().filter(|c| c.x < 40).count();
+        let right = corners.iter().filter(|c| c.x >= 40).count();
+        assert_eq!(left, 4);
+        assert_eq!(right, 4, "faint square found only through the fallback");
+        // Without the fallback (min = ini), the faint one is lost.
+        let strict = detect_in_cells(&img, w, h, 4, 36, 20, 20);
+        assert_eq!(strict.iter().filter(|c| c.x >= 40).count(), 0);
+    }
+
+    #[test]
+    fn flat_and_tiny_images_give_nothing() {
+        let img = vec![0u8; 50 * 50];
+        assert!(detect_in_cells(&img, 50, 50, 16, 30, 20, 7).is_empty());
+        assert!(detect_in_cells(&img[..100], 10, 10, 16, 30, 20, 7).is_empty());
+    }
+}

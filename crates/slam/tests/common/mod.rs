@@ -1,0 +1,4 @@
+//! Shared helpers of the ORB integration tests.
+
+pub mod metrics;
+pub mod sim_frames;
