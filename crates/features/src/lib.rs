@@ -12,11 +12,13 @@ pub mod engine;
 pub mod error;
 pub mod graph_cache;
 pub mod lightglue;
+pub mod mnn;
 pub mod models;
 pub mod onnx;
 pub mod pth;
 pub mod superpoint;
 pub mod types;
+pub mod xfeat;
 
 pub use error::{FeaturesError, Result};
 pub use types::{Detector, Features, Matcher, Matches};
