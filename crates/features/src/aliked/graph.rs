@@ -9,8 +9,9 @@
 //! with zeros outside, checked in [`super::deform`]).
 //!
 //! Outputs: `scores` `[1, 1, H, W]` (sigmoid score map), `x1` `[1, c1, H, W]` (block 1 output)
-//! and `x2g`, `x3g`, `x4g` `[1, dim/4, H/s, W/s]` (s = 2, 8, 32: the gated 1×1 projections of
-//! blocks 2–4 before upsampling). The reference concatenates the four projections upsampled to
+//! and `x2g`, `x3g`, `x4g` `[1, H/s, W/s, dim/4]` (s = 2, 8, 32: the gated 1×1 projections of
+//! blocks 2–4 before upsampling, channels last so that the descriptor head reads one pixel's
+//! channels in one go). The reference concatenates the four projections upsampled to
 //! full resolution into a 128-channel map; that map is never formed here: the score head's
 //! first 1×1 convolution (linear, no bias) is applied to each part before its upsampling, which
 //! commutes with it, and the descriptor head evaluates the normalised map only at the pixels it
@@ -24,7 +25,7 @@ use crate::pth::StateDict;
 pub const DIVISOR: usize = 32;
 
 /// Changes whenever the graph construction changes (part of the graph cache key).
-pub const GRAPH_VERSION: &str = "aliked-graph-2 grey-folded split-score-head";
+pub const GRAPH_VERSION: &str = "aliked-graph-3 grey-folded split-score-head nhwc-projections";
 
 /// Batch-norm epsilon of PyTorch's `nn.BatchNorm2d` default.
 const BN_EPS: f32 = 1e-5;
@@ -260,19 +261,18 @@ pub fn build(sd: &StateDict, d: &Dims) -> Result<Vec<u8>> {
     let scores = g.unary("Sigmoid", &s);
 
     let full = |c: usize| [Dim::from(1), Dim::from(c), hd.clone(), wd.clone()];
-    let low = |c: usize, s: &str| {
-        [
-            Dim::from(1),
-            Dim::from(c),
-            Dim::from(format!("height/{s}").as_str()),
-            Dim::from(format!("width/{s}").as_str()),
-        ]
-    };
     g.output_f32(&scores, "scores", &full(1));
     g.output_f32(&x1, "x1", &full(d.c1));
-    g.output_f32(&gated[1], "x2g", &low(q, "2"));
-    g.output_f32(&gated[2], "x3g", &low(q, "8"));
-    g.output_f32(&gated[3], "x4g", &low(q, "32"));
+    for (i, s) in [(1, "2"), (2, "8"), (3, "32")] {
+        let nhwc = g.transpose(&gated[i], &[0, 2, 3, 1]);
+        let dims = [
+            Dim::from(1),
+            Dim::from(format!("height/{s}").as_str()),
+            Dim::from(format!("width/{s}").as_str()),
+            Dim::from(q),
+        ];
+        g.output_f32(&nhwc, &format!("x{}g", i + 1), &dims);
+    }
     g.metadata("network", "ALIKED (Zhao et al., IEEE TIM 2023)");
     g.metadata("graph_version", GRAPH_VERSION);
     Ok(g.to_bytes())

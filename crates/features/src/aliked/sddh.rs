@@ -10,8 +10,9 @@
 //! reference forms at full resolution (512 MB at 1024×1024) although only ~73 pixels per
 //! keypoint are read. Here the map is evaluated only at those pixels, from the backbone's
 //! block-1 output and its three low-resolution projections (bilinear upsampling with
-//! `align_corners=True` recomputed exactly per pixel), gathered channel by channel over sorted
-//! pixel lists so the reads stay sequential. The dense products (offset estimation, sample
+//! `align_corners=True` recomputed exactly per pixel; the projections come channels-last so a
+//! pixel's channels are contiguous), one keypoint's pixels at a time so the working set stays
+//! in cache. The dense products (offset estimation, sample
 //! convolution, aggregation: ~1.1 GFLOP for 1024 keypoints) run as matrix products through
 //! nalgebra's `matrixmultiply` GEMM.
 
@@ -103,108 +104,82 @@ impl SddhWeights {
     }
 }
 
-/// The backbone outputs the descriptor map is made of (channel-major planes of the padded
-/// input), and the padding that maps image pixels into them.
+/// The backbone outputs the descriptor map is made of, and the padding that maps image pixels
+/// into them.
 #[derive(Debug, Clone, Copy)]
 pub(crate) struct FeatureMaps<'a> {
-    /// Block-1 output `[c1, hp, wp]`.
+    /// Block-1 output, channels first: `[c1, hp, wp]`.
     pub x1: &'a [f32],
-    /// Gated projections `[dim/4, hp/s, wp/s]`, s = 2, 8, 32.
+    /// Gated projections, channels last: `[hp/s, wp/s, dim/4]`, s = 2, 8, 32.
     pub x2g: &'a [f32],
     pub x3g: &'a [f32],
     pub x4g: &'a [f32],
     pub pad: Padding,
 }
 
+/// Bilinear taps along one axis for `align_corners=True` upsampling from `inp` to `out`
+/// samples (PyTorch: source = dst · (in − 1)/(out − 1)).
+fn corner_taps(dst: usize, inp: usize, out: usize) -> (usize, usize, f32) {
+    let scale = if out > 1 {
+        (inp - 1) as f32 / (out - 1) as f32
+    } else {
+        0.0
+    };
+    let src = scale * dst as f32;
+    let i0 = (src as usize).min(inp - 1);
+    let i1 = (i0 + 1).min(inp - 1);
+    (i0, i1, (src - i0 as f32).clamp(0.0, 1.0))
+}
+
 impl FeatureMaps<'_> {
     /// The normalised `dim`-vectors of the reference's feature map at the given pixels
-    /// (`y·w + x` of the unpadded map, sorted ascending): `[pixels.len(), dim]`.
+    /// (`y·w + x` of the unpadded map): `[pixels.len(), dim]`. Row-major output, one pixel at
+    /// a time, so callers keep their working set small by asking for nearby pixels together.
     pub(crate) fn features(&self, wts: &SddhWeights, pixels: &[usize]) -> Vec<f32> {
         let d = &wts.dims;
         let (dim, q, c1) = (d.dim, d.quarter(), d.c1);
         let pad = self.pad;
         let (hp, wp) = (pad.hp, pad.wp);
-        let yx: Vec<(usize, usize)> = pixels
-            .iter()
-            .map(|&i| (i / pad.w + pad.top, i % pad.w + pad.left))
-            .collect();
-        let n = yx.len();
+        let n = pixels.len();
+        let yx = |i: usize| (i / pad.w + pad.top, i % pad.w + pad.left);
 
         let mut a = vec![0.0f32; n * c1];
-        for c in 0..c1 {
-            let plane = &self.x1[c * hp * wp..(c + 1) * hp * wp];
-            for (i, &(y, x)) in yx.iter().enumerate() {
-                a[i * c1 + c] = plane[y * wp + x];
+        for (row, &p) in a.chunks_exact_mut(c1).zip(pixels) {
+            let (y, x) = yx(p);
+            for (c, v) in row.iter_mut().enumerate() {
+                *v = self.x1[(c * hp + y) * wp + x];
             }
         }
         let mut g1 = matmul(&a, n, c1, &wts.conv1_t, q);
         selu(&mut g1);
-        let mut out = vec![0.0f32; n * dim];
-        for i in 0..n {
-            out[i * dim..i * dim + q].copy_from_slice(&g1[i * q..(i + 1) * q]);
-        }
 
-        for (part, (map, s)) in [(self.x2g, 2usize), (self.x3g, 8), (self.x4g, 32)]
-            .into_iter()
-            .enumerate()
+        let mut out = vec![0.0f32; n * dim];
+        for ((row, g), &p) in out
+            .chunks_exact_mut(dim)
+            .zip(g1.chunks_exact(q))
+            .zip(pixels)
         {
-            let (hl, wl) = (hp / s, wp / s);
-            // align_corners=True: source = dst · (in − 1)/(out − 1).
-            let axis = |dst: usize, inp: usize, out: usize| -> (usize, usize, f32) {
-                let scale = if out > 1 {
-                    (inp - 1) as f32 / (out - 1) as f32
-                } else {
-                    0.0
-                };
-                let src = scale * dst as f32;
-                let i0 = (src as usize).min(inp - 1);
-                let i1 = (i0 + 1).min(inp - 1);
-                (i0, i1, (src - i0 as f32).clamp(0.0, 1.0))
-            };
-            let taps: Vec<([usize; 4], [f32; 4])> = yx
-                .iter()
-                .map(|&(y, x)| {
-                    let (y0, y1, ly) = axis(y, hl, hp);
-                    let (x0, x1, lx) = axis(x, wl, wp);
-                    (
-                        [y0 * wl + x0, y0 * wl + x1, y1 * wl + x0, y1 * wl + x1],
-                        [
-                            (1.0 - ly) * (1.0 - lx),
-                            (1.0 - ly) * lx,
-                            ly * (1.0 - lx),
-                            ly * lx,
-                        ],
-                    )
-                })
-                .collect();
-            let off = (part + 1) * q;
-            for c in 0..q {
-                let plane = &map[c * hl * wl..(c + 1) * hl * wl];
-                for (i, (idx, wt)) in taps.iter().enumerate() {
-                    out[i * dim + off + c] = wt[0] * plane[idx[0]]
-                        + wt[1] * plane[idx[1]]
-                        + wt[2] * plane[idx[2]]
-                        + wt[3] * plane[idx[3]];
+            let (y, x) = yx(p);
+            row[..q].copy_from_slice(g);
+            for (part, (map, s)) in [(self.x2g, 2usize), (self.x3g, 8), (self.x4g, 32)]
+                .into_iter()
+                .enumerate()
+            {
+                let (hl, wl) = (hp / s, wp / s);
+                let (y0, y1, ly) = corner_taps(y, hl, hp);
+                let (x0, x1, lx) = corner_taps(x, wl, wp);
+                let at = |yy: usize, xx: usize| &map[(yy * wl + xx) * q..][..q];
+                let (v00, v01, v10, v11) = (at(y0, x0), at(y0, x1), at(y1, x0), at(y1, x1));
+                let (w00, w01) = ((1.0 - ly) * (1.0 - lx), (1.0 - ly) * lx);
+                let (w10, w11) = (ly * (1.0 - lx), ly * lx);
+                let dst = &mut row[(part + 1) * q..(part + 2) * q];
+                for c in 0..q {
+                    dst[c] = w00 * v00[c] + w01 * v01[c] + w10 * v10[c] + w11 * v11[c];
                 }
             }
         }
         normalize_rows(&mut out, dim);
         out
-    }
-}
-
-/// Sorted unique pixel list and a lookup from pixel to row.
-struct PixelSet(Vec<usize>);
-
-impl PixelSet {
-    fn new(mut pixels: Vec<usize>) -> Self {
-        pixels.sort_unstable();
-        pixels.dedup();
-        Self(pixels)
-    }
-
-    fn row(&self, pixel: usize) -> usize {
-        self.0.binary_search(&pixel).expect("pixel was collected")
     }
 }
 
@@ -228,25 +203,24 @@ pub(crate) fn describe(
         .map(|p| [(p[0] / 2.0 + 0.5) * wh[0], (p[1] / 2.0 + 0.5) * wh[1]])
         .collect();
 
-    // Patch corners as the reference's get_patches: (⌊kp⌋ − K/2 + 1) truncated, clamped.
+    // Patches as the reference's get_patches: corner (⌊kp⌋ − K/2 + 1) truncated, clamped.
     let corner = |v: f32, size: usize| -> usize {
         let c = ((v as i64) as f32 - k as f32 / 2.0 + 1.0) as i64;
         c.clamp(0, (size as i64 - 1 - k as i64).max(0)) as usize
     };
-    let corners: Vec<(usize, usize)> = kp
+    let patch_pixels: Vec<usize> = kp
         .iter()
-        .map(|p| (corner(p[0], w), corner(p[1], h)))
+        .flat_map(|p| {
+            let (cx, cy) = (corner(p[0], w), corner(p[1], h));
+            (0..kk).map(move |t| (cy + t / k) * w + cx + t % k)
+        })
         .collect();
-    let patch_pixels = |&(cx, cy): &(usize, usize)| {
-        (0..kk).map(move |t| (cy + t / k).min(h - 1) * w + (cx + t % k).min(w - 1))
-    };
-    let set = PixelSet::new(corners.iter().flat_map(patch_pixels).collect());
-    let feats = maps.features(wts, &set.0);
+    let feats = maps.features(wts, &patch_pixels);
+    // [N, dim·K²] with input index c·K² + tap, as the convolution weights are laid out.
     let mut patches = vec![0.0f32; n * dim * kk];
-    for (i, c) in corners.iter().enumerate() {
-        for (t, px) in patch_pixels(c).enumerate() {
-            let f = &feats[set.row(px) * dim..][..dim];
-            let row = &mut patches[i * dim * kk..(i + 1) * dim * kk];
+    for (i, row) in patches.chunks_exact_mut(dim * kk).enumerate() {
+        for t in 0..kk {
+            let f = &feats[(i * kk + t) * dim..][..dim];
             for (ch, &v) in f.iter().enumerate() {
                 row[ch * kk + t] = v;
             }
@@ -269,11 +243,15 @@ pub(crate) fn describe(
         }
     }
 
-    // Sample positions (pixels, through the reference's normalise/unnormalise round trip) and
-    // their bilinear corners inside the map.
-    let mut samples: Vec<([usize; 4], [f32; 4])> = Vec::with_capacity(n * m);
+    // Bilinear samples (zeros outside), one keypoint at a time: its corner pixels are evaluated
+    // together (deduplicated) so the work stays in cache.
+    let mut sampled = vec![0.0f32; n * m * dim];
+    let mut corners: Vec<(usize, f32)> = Vec::with_capacity(4 * m);
+    let mut pixels: Vec<usize> = Vec::with_capacity(4 * m);
     for (i, p) in kp.iter().enumerate() {
+        corners.clear();
         for j in 0..m {
+            // The reference's normalise/unnormalise round trip, then grid_sample's corners.
             let pos = [p[0] + o[i * m2 + j], p[1] + o[i * m2 + m + j]];
             let px: [f32; 2] = std::array::from_fn(|a| {
                 let g = 2.0 * pos[a] / wh[a] - 1.0;
@@ -281,42 +259,37 @@ pub(crate) fn describe(
             });
             let (x0, y0) = (px[0].floor(), px[1].floor());
             let (lx, ly) = (px[0] - x0, px[1] - y0);
-            let mut idx = [usize::MAX; 4];
-            let mut wt = [0.0f32; 4];
-            for (t, (dx, dy, weight)) in [
+            for (dx, dy, weight) in [
                 (0i64, 0i64, (1.0 - lx) * (1.0 - ly)),
                 (1, 0, lx * (1.0 - ly)),
                 (0, 1, (1.0 - lx) * ly),
                 (1, 1, lx * ly),
-            ]
-            .into_iter()
-            .enumerate()
-            {
+            ] {
                 let (xi, yi) = (x0 as i64 + dx, y0 as i64 + dy);
-                if xi >= 0 && yi >= 0 && (xi as usize) < w && (yi as usize) < h {
-                    idx[t] = yi as usize * w + xi as usize;
-                    wt[t] = weight;
-                }
+                let inside = xi >= 0 && yi >= 0 && (xi as usize) < w && (yi as usize) < h;
+                let pixel = if inside {
+                    yi as usize * w + xi as usize
+                } else {
+                    usize::MAX
+                };
+                corners.push((pixel, weight));
             }
-            samples.push((idx, wt));
         }
-    }
-    let set = PixelSet::new(
-        samples
-            .iter()
-            .flat_map(|(idx, _)| idx.iter().copied().filter(|&p| p != usize::MAX))
-            .collect(),
-    );
-    let feats = maps.features(wts, &set.0);
-    let mut sampled = vec![0.0f32; n * m * dim];
-    for (s, (idx, wt)) in samples.iter().enumerate() {
-        let out = &mut sampled[s * dim..(s + 1) * dim];
-        for t in 0..4 {
-            if idx[t] == usize::MAX {
-                continue;
+        pixels.clear();
+        pixels.extend(corners.iter().map(|c| c.0).filter(|&c| c != usize::MAX));
+        pixels.sort_unstable();
+        pixels.dedup();
+        let feats = maps.features(wts, &pixels);
+        for (j, cs) in corners.chunks_exact(4).enumerate() {
+            let out = &mut sampled[(i * m + j) * dim..][..dim];
+            for &(pixel, weight) in cs {
+                if pixel == usize::MAX {
+                    continue;
+                }
+                let r = pixels.binary_search(&pixel).expect("collected corner");
+                let f = &feats[r * dim..][..dim];
+                out.iter_mut().zip(f).for_each(|(o, &v)| *o += weight * v);
             }
-            let f = &feats[set.row(idx[t]) * dim..][..dim];
-            out.iter_mut().zip(f).for_each(|(o, &v)| *o += wt[t] * v);
         }
     }
 
@@ -375,6 +348,7 @@ mod tests {
             let pad = Padding::new(60, 50, 32);
             let (hp, wp) = (pad.hp, pad.wp);
             let x1 = lcg(seed, dims.c1 * hp * wp);
+            // Channels last, as the graph outputs them.
             let x2 = lcg(seed + 1, q * hp * wp / 4);
             let x3 = lcg(seed + 2, q * hp * wp / 64);
             let x4 = lcg(seed + 3, q * hp * wp / 1024);
@@ -396,7 +370,7 @@ mod tests {
                 x4g: &x4,
                 pad,
             };
-            let pixels = vec![0, 7, 49, 50 * 17 + 33, 50 * 59 + 49];
+            let pixels = vec![50 * 17 + 33, 0, 7, 49, 50 * 59 + 49, 7];
             let got = maps.features(&wts, &pixels);
             // Dense reference with f64 bilinear upsampling (PyTorch's align_corners=True rule).
             let up = |map: &[f32], s: usize, c: usize, y: usize, x: usize| -> f64 {
@@ -406,7 +380,7 @@ mod tests {
                 let (y0, x0) = (sy.floor() as usize, sx.floor() as usize);
                 let (y1, x1) = ((y0 + 1).min(hl - 1), (x0 + 1).min(wl - 1));
                 let (ly, lx) = (sy - y0 as f64, sx - x0 as f64);
-                let v = |yy: usize, xx: usize| f64::from(map[(c * hl + yy) * wl + xx]);
+                let v = |yy: usize, xx: usize| f64::from(map[(yy * wl + xx) * q + c]);
                 (1.0 - ly) * ((1.0 - lx) * v(y0, x0) + lx * v(y0, x1))
                     + ly * ((1.0 - lx) * v(y1, x0) + lx * v(y1, x1))
             };
