@@ -8,5 +8,6 @@ pub mod ba;
 pub mod error;
 pub mod orb;
 pub mod initializer;
+pub mod map;
 
 pub use error::{Result, SlamError};
