@@ -155,7 +155,12 @@ impl XFeat {
     /// Runs the network on a pre-processed input.
     pub fn run(&self, input: &Preprocessed) -> Result<XFeatDense> {
         let (w, h) = (input.width, input.height);
-        if !w.is_multiple_of(32) || !h.is_multiple_of(32) || w == 0 || h == 0 || input.data.len() != w * h {
+        if !w.is_multiple_of(32)
+            || !h.is_multiple_of(32)
+            || w == 0
+            || h == 0
+            || input.data.len() != w * h
+        {
             return Err(FeaturesError::InvalidInput(format!(
                 "XFeat input must be a multiple of 32 per side with w·h values, got {w}×{h} \
                  and {} values",

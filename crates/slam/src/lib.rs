@@ -6,8 +6,8 @@
 
 pub mod ba;
 pub mod error;
-pub mod orb;
 pub mod initializer;
 pub mod map;
+pub mod orb;
 
 pub use error::{Result, SlamError};
