@@ -336,3 +336,64 @@ impl Detector for Aliked {
         })
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn config_reads_from_toml_with_model_names() {
+        let c: AlikedConfig = toml::from_str("model = \"t16\"\nresize = 640").unwrap();
+        assert_eq!(c.model, AlikedModel::T16);
+        assert_eq!(c.resize, Some(640));
+        assert_eq!(c.max_keypoints, Some(1024));
+        assert!(toml::from_str::<AlikedConfig>("model = \"n64\"").is_err());
+        assert!(toml::from_str::<AlikedConfig>("radius = 2").is_err());
+        let back: AlikedConfig = toml::from_str(&toml::to_string(&c).unwrap()).unwrap();
+        assert_eq!(back, c);
+    }
+
+    #[test]
+    fn selection_follows_the_reference_rules() {
+        let c = AlikedConfig::default();
+        assert_eq!(
+            c.selection(),
+            Selection::Threshold {
+                threshold: 0.2,
+                limit: 1024
+            }
+        );
+        let topk = AlikedConfig {
+            detection_threshold: 0.0,
+            max_keypoints: Some(500),
+            ..c.clone()
+        };
+        assert_eq!(topk.selection(), Selection::TopK(500));
+        let mean = AlikedConfig {
+            detection_threshold: -1.0,
+            max_keypoints: None,
+            ..c
+        };
+        assert_eq!(
+            mean.selection(),
+            Selection::Threshold {
+                threshold: -1.0,
+                limit: dkd::N_LIMIT_MAX
+            }
+        );
+    }
+
+    #[test]
+    fn flops_grow_with_the_network_input() {
+        let c = AlikedConfig::default();
+        assert_eq!(c.network_size(500, 500), (1024, 1024));
+        assert_eq!(c.network_size(640, 480), (768, 1024));
+        let native = AlikedConfig {
+            resize: None,
+            ..c.clone()
+        };
+        // 1024² vs 512² padded input: the backbone is ~4× the work, the head the same.
+        let (big, small) = (c.flops(500, 500), native.flops(500, 500));
+        assert!(big > 3 * small && big < 4 * small, "{big} vs {small}");
+    }
+}
