@@ -167,7 +167,7 @@ struct Neighbours {
 const TILE_ROWS: usize = 4;
 const TILE_COLS: usize = 16;
 
-/// Row and column best similarities of `a · bᵀ` (`a`: na × dim, `b`: nb × dim, row-major).
+/// Row best and second best, and column best, similarities of `a · bᵀ` (`a`: na × dim, `b`: nb × dim, row-major).
 fn nearest_neighbours(a: &[f32], b: &[f32], dim: usize) -> Neighbours {
     let (na, nb) = (a.len() / dim, b.len() / dim);
     // bᵀ padded to whole column tiles: tile t holds dim × TILE_COLS values, contiguous.
@@ -180,8 +180,12 @@ fn nearest_neighbours(a: &[f32], b: &[f32], dim: usize) -> Neighbours {
         }
     }
     let mut rows = vec![Best::EMPTY; na];
-    let mut cols = vec![Best::EMPTY; nb];
+    // Column maxima kept branch-free (vectorisable) in two plain arrays.
+    let mut col_best = vec![f32::NEG_INFINITY; nb];
+    let mut col_index = vec![0u32; nb];
     let mut a_tile = vec![0.0f32; dim * TILE_ROWS];
+    let mut sims = vec![0.0f32; TILE_ROWS * tiles * TILE_COLS];
+    let stride = tiles * TILE_COLS;
     for i0 in (0..na).step_by(TILE_ROWS) {
         let nr = TILE_ROWS.min(na - i0);
         // The row tile transposed (k-major) so each k reads TILE_ROWS consecutive values.
@@ -193,16 +197,36 @@ fn nearest_neighbours(a: &[f32], b: &[f32], dim: usize) -> Neighbours {
         }
         for t in 0..tiles {
             let acc = tile_product(&a_tile, &bt[t * dim * TILE_COLS..(t + 1) * dim * TILE_COLS]);
-            let nc = TILE_COLS.min(nb - t * TILE_COLS);
-            for (r, acc_row) in acc.iter().enumerate().take(nr) {
-                for (c, &s) in acc_row.iter().enumerate().take(nc) {
-                    let j = t * TILE_COLS + c;
-                    rows[i0 + r].offer(s, j);
-                    cols[j].offer(s, i0 + r);
+            for (r, acc_row) in acc.iter().enumerate() {
+                sims[r * stride + t * TILE_COLS..r * stride + (t + 1) * TILE_COLS]
+                    .copy_from_slice(acc_row);
+            }
+        }
+        for r in 0..nr {
+            let i = i0 + r;
+            let row = &sims[r * stride..r * stride + nb];
+            let best = &mut rows[i];
+            for (j, &s) in row.iter().enumerate() {
+                if s > best.second {
+                    best.offer(s, j);
                 }
+            }
+            for ((cb, ci), &s) in col_best.iter_mut().zip(col_index.iter_mut()).zip(row) {
+                let better = s > *cb;
+                *cb = if better { s } else { *cb };
+                *ci = if better { i as u32 } else { *ci };
             }
         }
     }
+    let cols = col_best
+        .into_iter()
+        .zip(col_index)
+        .map(|(best, i)| Best {
+            best,
+            second: f32::NEG_INFINITY,
+            best_index: i as usize,
+        })
+        .collect();
     Neighbours { rows, cols }
 }
 

@@ -179,17 +179,24 @@ pub fn nms(
     let mut out = Vec::new();
     for y in 0..height {
         let row = &heat[y * width..(y + 1) * width];
-        for (x, &v) in row.iter().enumerate() {
-            if v <= threshold {
+        for (c, chunk) in row.chunks(8).enumerate() {
+            // Most 8-pixel runs hold nothing above the threshold: one max skips them.
+            if chunk.iter().fold(f32::NEG_INFINITY, |m, &v| m.max(v)) <= threshold {
                 continue;
             }
-            let is_max = (y.saturating_sub(r)..(y + r + 1).min(height)).all(|yy| {
-                heat[yy * width + x.saturating_sub(r)..yy * width + (x + r + 1).min(width)]
-                    .iter()
-                    .all(|&n| n <= v)
-            });
-            if is_max {
-                out.push((x, y));
+            for (dx, &v) in chunk.iter().enumerate() {
+                if v <= threshold {
+                    continue;
+                }
+                let x = c * 8 + dx;
+                let is_max = (y.saturating_sub(r)..(y + r + 1).min(height)).all(|yy| {
+                    heat[yy * width + x.saturating_sub(r)..yy * width + (x + r + 1).min(width)]
+                        .iter()
+                        .all(|&n| n <= v)
+                });
+                if is_max {
+                    out.push((x, y));
+                }
             }
         }
     }
