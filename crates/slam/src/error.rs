@@ -38,6 +38,19 @@ pub enum SlamError {
     /// A geometric estimation failed.
     #[error(transparent)]
     Geometry(#[from] jointloc_geometry::GeometryError),
+    /// A line of an input file could not be parsed.
+    #[error("{path}:{line}: {message}")]
+    Parse {
+        path: PathBuf,
+        line: usize,
+        message: String,
+    },
+    /// An image file could not be decoded.
+    #[error("{path}: cannot decode image: {message}")]
+    ImageDecode { path: PathBuf, message: String },
+    /// A frame given to the system is unusable (wrong size, timestamps out of order, ...).
+    #[error("invalid frame {index}: {reason}")]
+    InvalidFrame { index: usize, reason: String },
     /// A file could not be read or written.
     #[error("{path}: {source}")]
     Io {

@@ -6,8 +6,14 @@
 
 pub mod ba;
 pub mod error;
+pub mod frame;
 pub mod initializer;
+pub mod local_mapping;
 pub mod map;
 pub mod orb;
+pub mod relocalisation;
+pub mod sequence;
+pub mod system;
+pub mod tracking;
 
 pub use error::{Result, SlamError};

@@ -1,0 +1,173 @@
+//! Local bundle adjustment (ORB-SLAM2's `LocalBundleAdjustment`) over the new keyframe and its
+//! covisible neighbours, with the keyframes that see the local points but are outside the
+//! window held fixed, plus JointLoc's global-position factors for keyframes that carry an
+//! absolute fix (paper §III-C, `f(x)`), given the current SLAM→world similarity.
+
+use std::collections::{BTreeMap, BTreeSet};
+
+use jointloc_geometry::{PinholeCamera, RobustKernel, Sim3};
+use nalgebra::Point2;
+use serde::{Deserialize, Serialize};
+
+use crate::ba::{
+    BaProblem, CHI2_3DOF_95, GlobalPositionFactor, Observation, TwoStageConfig,
+    bundle_adjust_two_stage,
+};
+use crate::error::Result;
+use crate::map::{KeyFrameId, Map, MapPointId};
+
+/// Settings of [`local_bundle_adjustment`].
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct LocalBaConfig {
+    /// The solver schedule (ORB-SLAM2: 5 robust iterations, outliers out, 10 more).
+    pub solver: TwoStageConfig,
+    /// Covisible keyframes optimised with the new one at most (ORB-SLAM2: all covisible).
+    pub max_window: usize,
+    /// Fixed keyframes at most (those observing most local points are kept).
+    pub max_fixed: usize,
+    /// σ_G of a global fix of confidence 1, metres (world frame).
+    pub global_sigma: f64,
+    /// Kernel of the global-position factors.
+    pub global_kernel: RobustKernel,
+}
+
+impl Default for LocalBaConfig {
+    fn default() -> Self {
+        Self {
+            solver: TwoStageConfig::default(),
+            max_window: 20,
+            max_fixed: 30,
+            global_sigma: 1.0,
+            global_kernel: RobustKernel::Huber {
+                delta: CHI2_3DOF_95.sqrt(),
+            },
+        }
+    }
+}
+
+/// What a local BA did.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct LbaStats {
+    pub free_keyframes: usize,
+    pub fixed_keyframes: usize,
+    pub points: usize,
+    pub observations: usize,
+    pub global_factors: usize,
+    pub outliers_removed: usize,
+    pub iterations: usize,
+}
+
+/// Optimises the local window of `kf` and writes poses and points back; observations flagged
+/// as outliers are erased from the map. `slam_to_world` enables the global-position factors of
+/// the window keyframes that have a `global_fix`.
+pub fn local_bundle_adjustment(
+    map: &mut Map,
+    kf: KeyFrameId,
+    camera: &PinholeCamera,
+    config: &LocalBaConfig,
+    slam_to_world: Option<&Sim3>,
+) -> Result<LbaStats> {
+    let first = map.keyframes().next().map(|k| k.id);
+    let window: Vec<KeyFrameId> = map.local_window(kf, config.max_window);
+    if window.len() < 2 {
+        return Ok(LbaStats::default());
+    }
+    let window_set: BTreeSet<KeyFrameId> = window.iter().copied().collect();
+    let mut points: BTreeSet<MapPointId> = BTreeSet::new();
+    for k in &window {
+        if let Some(k) = map.keyframe(*k) {
+            points.extend(k.points.iter().flatten().copied());
+        }
+    }
+    let points: Vec<MapPointId> = points.into_iter().collect();
+    let mut fixed_counts: BTreeMap<KeyFrameId, usize> = BTreeMap::new();
+    for id in &points {
+        if let Some(p) = map.point(*id) {
+            for o in p.observations().keys().filter(|o| !window_set.contains(o)) {
+                *fixed_counts.entry(*o).or_default() += 1;
+            }
+        }
+    }
+    let mut fixed: Vec<(KeyFrameId, usize)> = fixed_counts.into_iter().collect();
+    fixed.sort_by(|a, b| b.1.cmp(&a.1).then(a.0.cmp(&b.0)));
+    fixed.truncate(config.max_fixed);
+    let mut problem = BaProblem::new(*camera);
+    let mut cam_index: BTreeMap<KeyFrameId, usize> = BTreeMap::new();
+    let mut stats = LbaStats::default();
+    for k in &window {
+        let kfr = map.keyframe(*k).expect("window keyframes exist");
+        let is_fixed = Some(*k) == first;
+        let ci = problem.add_camera(kfr.pose, is_fixed);
+        cam_index.insert(*k, ci);
+        if is_fixed {
+            stats.fixed_keyframes += 1;
+        } else {
+            stats.free_keyframes += 1;
+            if let (Some(fix), Some(s)) = (kfr.global_fix, slam_to_world) {
+                problem.add_global_factor(GlobalPositionFactor {
+                    sigma: config.global_sigma,
+                    kernel: config.global_kernel,
+                    ..GlobalPositionFactor::new(ci, fix.position, *s, fix.weight)
+                });
+                stats.global_factors += 1;
+            }
+        }
+    }
+    for (k, _) in &fixed {
+        let kfr = map.keyframe(*k).expect("observing keyframes exist");
+        cam_index.insert(*k, problem.add_camera(kfr.pose, true));
+        stats.fixed_keyframes += 1;
+    }
+    let sf = map.scale_factor();
+    let mut obs_keys: Vec<(MapPointId, KeyFrameId)> = Vec::new();
+    for (pi, id) in points.iter().enumerate() {
+        let p = map.point(*id).expect("collected above");
+        problem.add_point(p.position, false);
+        for (k, &i) in p.observations() {
+            let Some(&ci) = cam_index.get(k) else {
+                continue;
+            };
+            let kp = &map
+                .keyframe(*k)
+                .expect("observing keyframes exist")
+                .features
+                .keypoints[i];
+            problem.observations.push(Observation::at_level(
+                ci,
+                pi,
+                Point2::new(kp.x, kp.y),
+                kp.octave,
+                sf,
+            ));
+            obs_keys.push((*id, *k));
+        }
+    }
+    stats.points = points.len();
+    stats.observations = obs_keys.len();
+    let result = bundle_adjust_two_stage(&problem, &config.solver)?;
+    stats.iterations = result.iterations;
+    for (k, &ci) in &cam_index {
+        if !problem.cameras[ci].fixed
+            && let Some(kfr) = map.keyframe_mut(*k)
+        {
+            kfr.pose = result.cameras[ci];
+        }
+    }
+    for (id, x) in points.iter().zip(&result.points) {
+        if let Some(p) = map.point_mut(*id) {
+            p.position = *x;
+        }
+    }
+    for (&(id, k), &outlier) in obs_keys.iter().zip(&result.outliers) {
+        if outlier {
+            map.remove_observation(id, k);
+            stats.outliers_removed += 1;
+        }
+    }
+    for id in &points {
+        map.update_normal_and_depth(*id);
+    }
+    tracing::debug!(?stats, "local BA");
+    Ok(stats)
+}

@@ -1,0 +1,285 @@
+//! The sequential SLAM driver: frames in (image, timestamp, altitude), per-frame pose and state
+//! out. Each frame is extracted and tracked; a new keyframe is mapped (local mapping and local
+//! BA) before the next frame is read, which makes runs deterministic. Per-module times are
+//! recorded for the timing summary.
+
+use std::collections::BTreeMap;
+use std::time::Instant;
+
+use jointloc_geometry::trajectory::Trajectory;
+use jointloc_geometry::{CameraToWorld, PinholeCamera, Sim3, WorldToCamera};
+use nalgebra::Isometry3;
+use serde::{Deserialize, Serialize};
+
+use crate::error::{Result, SlamError};
+use crate::frame::{Frame, image_entropy};
+use crate::local_mapping::{LocalMapper, LocalMappingConfig};
+use crate::map::{KeyFrameId, Map};
+use crate::orb::{GrayImageView, OrbConfig, OrbExtractor};
+use crate::tracking::{Tracker, TrackingConfig, TrackingState};
+
+/// Settings of the whole relative-localisation system.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[serde(default)]
+pub struct SystemConfig {
+    pub orb: OrbConfig,
+    pub tracking: TrackingConfig,
+    pub local_mapping: LocalMappingConfig,
+}
+
+/// The result of one frame.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FrameResult {
+    pub index: usize,
+    pub timestamp: f64,
+    pub state: TrackingState,
+    /// Camera-to-world pose in the SLAM frame as tracked (online), if tracked.
+    pub pose: Option<CameraToWorld>,
+    pub inliers: usize,
+    /// The keyframe this frame became, if any.
+    pub keyframe: Option<KeyFrameId>,
+    pub relocalised: bool,
+}
+
+/// Per-module wall times, milliseconds (one entry per frame or per keyframe).
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct Timing {
+    /// ORB extraction, per frame.
+    pub orb_ms: Vec<f64>,
+    /// Tracking (everything after extraction, before local mapping), per frame.
+    pub tracking_ms: Vec<f64>,
+    /// Local mapping incl. local BA, per keyframe.
+    pub local_mapping_ms: Vec<f64>,
+    /// Local BA alone, per keyframe.
+    pub lba_ms: Vec<f64>,
+    /// Whole frame, per frame.
+    pub frame_ms: Vec<f64>,
+}
+
+/// Median of a list of times (0 when empty).
+pub fn median(values: &[f64]) -> f64 {
+    if values.is_empty() {
+        return 0.0;
+    }
+    let mut v = values.to_vec();
+    v.sort_by(f64::total_cmp);
+    let n = v.len();
+    if n % 2 == 1 {
+        v[n / 2]
+    } else {
+        0.5 * (v[n / 2 - 1] + v[n / 2])
+    }
+}
+
+/// What the final trajectory needs of a tracked frame: its pose relative to its reference
+/// keyframe, so later keyframe corrections move it too (as ORB-SLAM2 saves trajectories).
+#[derive(Debug, Clone, Copy)]
+struct FrameRecord {
+    timestamp: f64,
+    reference: KeyFrameId,
+    /// `T_c,ref`.
+    relative: Isometry3<f64>,
+}
+
+/// Monocular SLAM, one frame at a time.
+#[derive(Debug)]
+pub struct System {
+    camera: PinholeCamera,
+    /// The camera the tracker works with: the same intrinsics without distortion, since
+    /// keypoints are undistorted on extraction.
+    ideal: PinholeCamera,
+    extractor: OrbExtractor,
+    map: Map,
+    tracker: Tracker,
+    mapper: LocalMapper,
+    slam_to_world: Option<Sim3>,
+    records: Vec<FrameRecord>,
+    culled: BTreeMap<KeyFrameId, (KeyFrameId, Isometry3<f64>)>,
+    timing: Timing,
+    next_index: usize,
+    last_timestamp: Option<f64>,
+}
+
+impl System {
+    pub fn new(camera: PinholeCamera, config: SystemConfig) -> Result<Self> {
+        let k = &camera;
+        if ![k.fx, k.fy, k.cx, k.cy].iter().all(|v| v.is_finite()) || k.fx <= 0.0 || k.fy <= 0.0 {
+            return Err(SlamError::NonFinite("camera intrinsics"));
+        }
+        let extractor = OrbExtractor::new(config.orb.clone())?;
+        let map = Map::new(config.orb.scale_factor, config.orb.n_levels);
+        Ok(Self {
+            camera,
+            ideal: PinholeCamera {
+                distortion: None,
+                ..camera
+            },
+            extractor,
+            map,
+            tracker: Tracker::new(config.tracking),
+            mapper: LocalMapper::new(config.local_mapping),
+            slam_to_world: None,
+            records: Vec::new(),
+            culled: BTreeMap::new(),
+            timing: Timing::default(),
+            next_index: 0,
+            last_timestamp: None,
+        })
+    }
+
+    pub fn map(&self) -> &Map {
+        &self.map
+    }
+
+    /// Mutable access for the fusion (attaching `global_fix`es to keyframes).
+    pub fn map_mut(&mut self) -> &mut Map {
+        &mut self.map
+    }
+
+    pub fn state(&self) -> TrackingState {
+        self.tracker.state()
+    }
+
+    pub fn timing(&self) -> &Timing {
+        &self.timing
+    }
+
+    /// The SLAM→world similarity the local BA uses for global-position factors (`None`: no
+    /// global factors).
+    pub fn set_slam_to_world(&mut self, s: Option<Sim3>) {
+        self.slam_to_world = s;
+    }
+
+    /// Declares tracking lost, forgetting the motion model (see [`Tracker::force_lost`]).
+    pub fn force_lost(&mut self) {
+        self.tracker.force_lost();
+    }
+
+    /// Processes the next frame. Errors on an image of the wrong size, a non-finite or
+    /// non-increasing timestamp, or a non-finite / non-positive altitude.
+    pub fn process(
+        &mut self,
+        image: GrayImageView<'_>,
+        timestamp: f64,
+        altitude: Option<f64>,
+    ) -> Result<FrameResult> {
+        let index = self.next_index;
+        let bad = |reason: String| SlamError::InvalidFrame { index, reason };
+        if image.width() != self.camera.width as usize
+            || image.height() != self.camera.height as usize
+        {
+            return Err(bad(format!(
+                "image is {}x{} px, the camera {}x{}",
+                image.width(),
+                image.height(),
+                self.camera.width,
+                self.camera.height
+            )));
+        }
+        if !timestamp.is_finite() || self.last_timestamp.is_some_and(|t| timestamp <= t) {
+            return Err(bad(format!(
+                "timestamp {timestamp} is not finite or not increasing"
+            )));
+        }
+        if let Some(a) = altitude
+            && !(a.is_finite() && a > 0.0)
+        {
+            return Err(bad(format!("altitude {a} is not a positive finite number")));
+        }
+        self.next_index += 1;
+        self.last_timestamp = Some(timestamp);
+        let t0 = Instant::now();
+        let features = self.extractor.extract(image)?;
+        let entropy = image_entropy(&image);
+        let mut frame = Frame::new(index, timestamp, features, &self.camera, altitude, entropy);
+        let t1 = Instant::now();
+        let outcome = self.tracker.track(&mut frame, &mut self.map, &self.ideal);
+        let t2 = Instant::now();
+        let mut keyframe = None;
+        if outcome.initialised {
+            self.mapper.add_recent(&self.map);
+            keyframe = self.map.last_keyframe().map(|k| k.id);
+        } else if outcome.keyframe_needed
+            && let Some(kf) = self.mapper.insert_keyframe(&mut self.map, &frame)
+        {
+            self.tracker.keyframe_inserted(&frame, kf);
+            frame.reference = Some(kf);
+            let report =
+                self.mapper
+                    .process(&mut self.map, kf, &self.ideal, self.slam_to_world.as_ref())?;
+            for c in &report.culled_keyframes {
+                self.culled.insert(c.id, (c.parent, c.relative));
+            }
+            self.timing.local_mapping_ms.push(report.total_ms);
+            self.timing.lba_ms.push(report.lba_ms);
+            keyframe = Some(kf);
+        }
+        let t3 = Instant::now();
+        self.timing.orb_ms.push(ms(t1 - t0));
+        self.timing.tracking_ms.push(ms(t2 - t1));
+        self.timing.frame_ms.push(ms(t3 - t0));
+        if let (Some(pose), Some(reference)) = (frame.pose, frame.reference)
+            && let Some(ref_pose) = self.keyframe_pose(reference)
+        {
+            self.records.push(FrameRecord {
+                timestamp,
+                reference,
+                relative: pose.0 * ref_pose.0.inverse(),
+            });
+        }
+        Ok(FrameResult {
+            index,
+            timestamp,
+            state: outcome.state,
+            pose: frame.pose.map(|p| p.inverse()),
+            inliers: outcome.inliers,
+            keyframe,
+            relocalised: outcome.relocalised,
+        })
+    }
+
+    /// Current `T_cw` of a keyframe, following culled keyframes to their parents.
+    fn keyframe_pose(&self, mut id: KeyFrameId) -> Option<WorldToCamera> {
+        let mut chain = Isometry3::identity();
+        for _ in 0..10_000 {
+            if let Some(kf) = self.map.keyframe(id) {
+                return Some(WorldToCamera(chain * kf.pose.0));
+            }
+            let (parent, rel) = self.culled.get(&id)?;
+            chain *= rel;
+            id = *parent;
+        }
+        None
+    }
+
+    /// Every tracked frame's camera-to-world pose in the SLAM frame, each expressed through its
+    /// reference keyframe's current (optimised) pose, as ORB-SLAM2 saves trajectories. Frames
+    /// that were lost, or processed before the initialisation, are absent.
+    pub fn trajectory(&self) -> Result<Trajectory> {
+        let mut stamps = Vec::new();
+        let mut poses = Vec::new();
+        for r in &self.records {
+            if let Some(kf) = self.keyframe_pose(r.reference) {
+                stamps.push(r.timestamp);
+                poses.push(CameraToWorld((r.relative * kf.0).inverse()));
+            }
+        }
+        Ok(Trajectory::new(stamps, poses)?)
+    }
+
+    /// Camera-to-world poses of the keyframes in the map.
+    pub fn keyframe_trajectory(&self) -> Result<Trajectory> {
+        let mut kfs: Vec<_> = self
+            .map
+            .keyframes()
+            .map(|k| (k.timestamp, k.pose.inverse()))
+            .collect();
+        kfs.sort_by(|a, b| a.0.total_cmp(&b.0));
+        let (stamps, poses) = kfs.into_iter().unzip();
+        Ok(Trajectory::new(stamps, poses)?)
+    }
+}
+
+fn ms(d: std::time::Duration) -> f64 {
+    d.as_secs_f64() * 1e3
+}
