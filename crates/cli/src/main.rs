@@ -5,6 +5,7 @@
 mod eval;
 mod models;
 mod sim;
+mod vo;
 
 use clap::{Parser, Subcommand};
 use tracing_subscriber::EnvFilter;
@@ -27,6 +28,9 @@ enum Command {
     Models(models::Args),
     /// Generate a simulated Mars dataset: terrain, satellite map + tiles, UAV images, ground truth.
     Sim(sim::Args),
+    /// Relative localisation only (monocular ORB SLAM): SLAM-frame TUM trajectory, map points,
+    /// timing.
+    Vo(vo::Args),
 }
 
 fn main() -> std::process::ExitCode {
@@ -40,6 +44,7 @@ fn main() -> std::process::ExitCode {
         Command::Eval(args) => eval::run(args),
         Command::Models(args) => models::run(args),
         Command::Sim(args) => sim::run(args),
+        Command::Vo(args) => vo::run(args),
     };
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,

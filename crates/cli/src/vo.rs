@@ -1,0 +1,189 @@
+//! `jointloc vo`: relative localisation only (monocular ORB SLAM) on a dataset folder. Writes
+//! every tracked frame's camera-to-world pose in the SLAM frame (TUM), optionally the keyframe
+//! trajectory and the map points (PLY), and prints a per-module timing summary.
+//!
+//! Lost frames (and frames before the initialisation) have no pose: they are not written, and
+//! the summary lists them.
+
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use anyhow::{Context, bail};
+use jointloc_sim::camera_yaml::read_camera_yaml;
+use jointloc_slam::map::Map;
+use jointloc_slam::orb::GrayImageView;
+use jointloc_slam::sequence::Sequence;
+use jointloc_slam::system::{System, SystemConfig, median};
+use jointloc_slam::tracking::TrackingState;
+
+#[derive(Debug, clap::Args)]
+pub struct Args {
+    /// Dataset folder (uav/images.txt, uav/altimeter.txt, camera.yaml; see DESIGN §3).
+    #[arg(long)]
+    dataset: PathBuf,
+    /// Output trajectory (TUM, camera-to-world, SLAM frame; metric scale from the altimeter).
+    #[arg(long)]
+    out: PathBuf,
+    /// Process every frame in order, mapping each keyframe before the next frame
+    /// (deterministic). This is currently the only mode: a threaded mode is not implemented.
+    #[arg(long)]
+    sequential: bool,
+    /// Keyframe trajectory output (TUM).
+    #[arg(long, value_name = "PATH")]
+    keyframes: Option<PathBuf>,
+    /// Map points output (ASCII PLY).
+    #[arg(long, value_name = "PATH")]
+    map_points: Option<PathBuf>,
+    /// Write each frame's pose as estimated when it was tracked, instead of through its
+    /// reference keyframe's final pose (ORB-SLAM2's way, the default).
+    #[arg(long)]
+    online: bool,
+    /// Process only the first N frames.
+    #[arg(long, value_name = "N")]
+    max_frames: Option<usize>,
+    /// Settings (TOML, `SystemConfig`: [orb], [tracking], [local_mapping]); defaults otherwise.
+    #[arg(long, value_name = "PATH")]
+    config: Option<PathBuf>,
+    /// Ignore the altimeter (the scale is then the ORB-SLAM2 median depth of 1).
+    #[arg(long)]
+    no_altimeter: bool,
+}
+
+pub fn run(args: Args) -> anyhow::Result<()> {
+    let camera = read_camera_yaml(&args.dataset.join("camera.yaml"))?.camera;
+    let sequence = Sequence::open(&args.dataset)?;
+    let config: SystemConfig = match &args.config {
+        Some(p) => {
+            let text =
+                std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?;
+            toml::from_str(&text).with_context(|| format!("parsing {}", p.display()))?
+        }
+        None => SystemConfig::default(),
+    };
+    if !args.sequential {
+        tracing::info!("threaded mode is not implemented; running sequentially");
+    }
+    let mut system = System::new(camera, config)?;
+    let n = args.max_frames.unwrap_or(usize::MAX).min(sequence.len());
+    let start = Instant::now();
+    let mut online_t = Vec::new();
+    let mut online_p = Vec::new();
+    let mut lost = Vec::new();
+    let mut relocalised = Vec::new();
+    let mut initialised_at = None;
+    for i in 0..n {
+        let f = &sequence.frames[i];
+        let image = sequence.load_image(i)?;
+        let altitude = if args.no_altimeter { None } else { f.altitude };
+        let r = system
+            .process(GrayImageView::from(&image), f.timestamp, altitude)
+            .with_context(|| format!("frame {i} ({})", f.path.display()))?;
+        match r.state {
+            TrackingState::Ok => {
+                initialised_at.get_or_insert(i);
+            }
+            TrackingState::Lost => lost.push(i),
+            TrackingState::NotInitialized => {}
+        }
+        if r.relocalised {
+            relocalised.push(i);
+        }
+        if let Some(p) = r.pose {
+            online_t.push(r.timestamp);
+            online_p.push(p);
+        }
+        if i % 100 == 99 {
+            tracing::info!(
+                frame = i + 1,
+                of = n,
+                keyframes = system.map().n_keyframes(),
+                "progress"
+            );
+        }
+    }
+    let wall = start.elapsed().as_secs_f64();
+    let trajectory = if args.online {
+        jointloc_geometry::trajectory::Trajectory::new(online_t, online_p)?
+    } else {
+        system.trajectory()?
+    };
+    if trajectory.is_empty() {
+        bail!("no frame was tracked (the map never initialised)");
+    }
+    trajectory.write_tum(&args.out)?;
+    if let Some(p) = &args.keyframes {
+        system.keyframe_trajectory()?.write_tum(p)?;
+    }
+    if let Some(p) = &args.map_points {
+        write_ply(system.map(), p)?;
+    }
+    let t = system.timing();
+    println!(
+        "{n} frames: {} tracked, initialised at frame {}, {} lost{}, {} relocalised",
+        trajectory.len(),
+        initialised_at.map_or("-".to_string(), |i| i.to_string()),
+        lost.len(),
+        if lost.is_empty() {
+            String::new()
+        } else {
+            format!(" ({})", ranges(&lost))
+        },
+        relocalised.len()
+    );
+    println!(
+        "map: {} keyframes, {} points",
+        system.map().n_keyframes(),
+        system.map().n_points()
+    );
+    println!(
+        "median ms: ORB extraction {:.1}, tracking {:.1}, local mapping {:.1} (per keyframe, {} keyframes inserted), local BA {:.1}",
+        median(&t.orb_ms),
+        median(&t.tracking_ms),
+        median(&t.local_mapping_ms),
+        t.local_mapping_ms.len(),
+        median(&t.lba_ms)
+    );
+    println!(
+        "throughput: {:.1} Hz ({n} frames in {wall:.1} s, image decoding included)",
+        n as f64 / wall.max(1e-9)
+    );
+    println!("wrote {}", args.out.display());
+    Ok(())
+}
+
+/// `3-7, 12` style list of sorted indices.
+fn ranges(v: &[usize]) -> String {
+    let mut out = String::new();
+    let mut i = 0;
+    while i < v.len() {
+        let mut j = i;
+        while j + 1 < v.len() && v[j + 1] == v[j] + 1 {
+            j += 1;
+        }
+        if !out.is_empty() {
+            out += ", ";
+        }
+        if i == j {
+            let _ = write!(out, "{}", v[i]);
+        } else {
+            let _ = write!(out, "{}-{}", v[i], v[j]);
+        }
+        i = j + 1;
+    }
+    out
+}
+
+/// Map points as an ASCII PLY (x y z in the SLAM frame).
+fn write_ply(map: &Map, path: &Path) -> anyhow::Result<()> {
+    let mut s = String::new();
+    let _ = write!(
+        s,
+        "ply\nformat ascii 1.0\ncomment jointloc vo map points, SLAM frame\nelement vertex {}\nproperty double x\nproperty double y\nproperty double z\nend_header\n",
+        map.n_points()
+    );
+    for p in map.points() {
+        let _ = writeln!(s, "{} {} {}", p.position.x, p.position.y, p.position.z);
+    }
+    std::fs::write(path, s).with_context(|| format!("writing {}", path.display()))
+}

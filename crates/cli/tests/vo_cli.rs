@@ -1,0 +1,107 @@
+//! `jointloc vo`: a short simulated flight gives a trajectory, keyframes, map points and a timing
+//! summary; a bad dataset gives one clear error line.
+
+use std::path::Path;
+use std::process::{Command, Output};
+
+fn jointloc(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_jointloc"))
+        .args(args)
+        .output()
+        .expect("run jointloc")
+}
+
+fn text(b: &[u8]) -> String {
+    String::from_utf8_lossy(b).into_owned()
+}
+
+fn tum_lines(path: &Path) -> usize {
+    std::fs::read_to_string(path)
+        .unwrap()
+        .lines()
+        .filter(|l| !l.starts_with('#') && !l.trim().is_empty())
+        .count()
+}
+
+#[test]
+fn a_short_flight_writes_trajectory_keyframes_points_and_timing() {
+    let tmp = tempfile::tempdir().unwrap();
+    let ds = tmp.path().join("ds");
+    let sim = jointloc(&[
+        "sim",
+        "--length-m",
+        "12",
+        "--seed",
+        "31",
+        "--terrain",
+        "gravel",
+        "--out",
+        ds.to_str().unwrap(),
+    ]);
+    assert!(sim.status.success(), "{}", text(&sim.stderr));
+    let out = tmp.path().join("traj.tum");
+    let kf = tmp.path().join("kf.tum");
+    let ply = tmp.path().join("points.ply");
+    let vo = jointloc(&[
+        "vo",
+        "--dataset",
+        ds.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--sequential",
+        "--keyframes",
+        kf.to_str().unwrap(),
+        "--map-points",
+        ply.to_str().unwrap(),
+    ]);
+    let stdout = text(&vo.stdout);
+    assert!(vo.status.success(), "{}\n{stdout}", text(&vo.stderr));
+    for needle in [
+        "0 lost",
+        "median ms: ORB extraction",
+        "local BA",
+        "throughput",
+        " Hz",
+    ] {
+        assert!(
+            stdout.contains(needle),
+            "summary lacks `{needle}`:\n{stdout}"
+        );
+    }
+    let frames = tum_lines(&ds.join("uav/gt.txt"));
+    let tracked = tum_lines(&out);
+    assert!(
+        tracked + 10 >= frames && tracked <= frames,
+        "{tracked} of {frames} frames written"
+    );
+    assert!(tum_lines(&kf) >= 2);
+    let ply = std::fs::read_to_string(&ply).unwrap();
+    let n: usize = ply
+        .lines()
+        .find_map(|l| l.strip_prefix("element vertex "))
+        .unwrap()
+        .parse()
+        .unwrap();
+    assert!(n > 100);
+    assert_eq!(
+        ply.lines().skip_while(|l| *l != "end_header").count() - 1,
+        n
+    );
+}
+
+#[test]
+fn a_missing_dataset_is_one_clear_error() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("t.tum");
+    let o = jointloc(&[
+        "vo",
+        "--dataset",
+        tmp.path().join("nope").to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(!o.status.success());
+    let e = text(&o.stderr);
+    assert!(e.starts_with("error:") && e.contains("camera.yaml"), "{e}");
+    assert!(!out.exists());
+}
