@@ -17,6 +17,13 @@ pub const N_TESTS: usize = 256;
 /// point stays within it too, and a border of `PATTERN_RADIUS + 1` px is always enough).
 pub const PATTERN_RADIUS: usize = 13;
 
+/// Nearest integer of a rotated test coordinate (|v| < 64), halves rounded up; a cast
+/// instead of `f32::round`, which is a libm call on baseline x86-64.
+#[inline]
+pub(crate) fn round_offset(v: f32) -> isize {
+    (v + 64.5) as isize - 64
+}
+
 /// Hamming distance of two descriptors.
 #[inline]
 pub fn hamming(a: &Descriptor, b: &Descriptor) -> u32 {
@@ -112,22 +119,27 @@ pub fn describe(
     let r = PATTERN_RADIUS;
     let inside = x >= r && y >= r && x + r < w && y + r < h;
     let (xi, yi) = (x as isize, y as isize);
-    let sample = |dx: i8, dy: i8| -> u8 {
+    // Rotated test points as offsets into the level, then the comparisons.
+    let index = |dx: i8, dy: i8| -> usize {
         let (fx, fy) = (dx as f32, dy as f32);
-        let u = (fx * c - fy * s).round() as isize;
-        let v = (fx * s + fy * c).round() as isize;
+        let u = round_offset(fx * c - fy * s);
+        let v = round_offset(fx * s + fy * c);
         if inside {
-            blurred[(yi + v) as usize * w + (xi + u) as usize]
+            ((yi + v) * w as isize + xi + u) as usize
         } else {
             let px = (xi + u).clamp(0, w as isize - 1) as usize;
             let py = (yi + v).clamp(0, h as isize - 1) as usize;
-            blurred[py * w + px]
+            py * w + px
         }
     };
     let mut d = [0u8; 32];
-    for (i, t) in pattern.tests.iter().enumerate() {
-        let bit = (sample(t[0], t[1]) < sample(t[2], t[3])) as u8;
-        d[i / 8] |= bit << (i % 8);
+    for (byte, tests) in d.iter_mut().zip(pattern.tests.chunks_exact(8)) {
+        let mut b = 0u8;
+        for (bit, t) in tests.iter().enumerate() {
+            let (p, q) = (blurred[index(t[0], t[1])], blurred[index(t[2], t[3])]);
+            b |= ((p < q) as u8) << bit;
+        }
+        *byte = b;
     }
     d
 }

@@ -28,9 +28,6 @@ pub const CIRCLE: [(isize, isize); 16] = [
     (-1, -3),
 ];
 
-/// Contiguous pixels required (FAST-9).
-const ARC: usize = 9;
-
 /// A corner after non-maximum suppression, in level pixels.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Corner {
@@ -40,7 +37,7 @@ pub struct Corner {
     pub score: u8,
 }
 
-/// True when the 16-bit circular mask has `ARC` contiguous set bits.
+/// True when the 16-bit circular mask has 9 contiguous set bits (FAST-9).
 #[inline]
 fn has_arc(mask: u32) -> bool {
     let m = mask | (mask << 16);
@@ -52,20 +49,31 @@ fn has_arc(mask: u32) -> bool {
 }
 
 /// FAST score of a pixel known to be a corner: max over arcs and both polarities of the
-/// smallest signed difference along the arc.
+/// smallest signed difference along the arc. Sliding minima/maxima over the doubled circle
+/// (windows of 2, 4, 8, then 9) in fixed-size arrays, which the compiler vectorises.
 #[inline]
 fn score_of(d: &[i16; 16]) -> u8 {
-    let mut best = 0i16;
-    for s in 0..16 {
-        let (mut lo, mut hi) = (i16::MAX, i16::MAX);
-        for k in 0..ARC {
-            let v = d[(s + k) & 15];
-            lo = lo.min(v);
-            hi = hi.min(-v);
-        }
-        best = best.max(lo).max(hi);
+    let mut e = [0i16; 32];
+    e[..16].copy_from_slice(d);
+    e[16..].copy_from_slice(d);
+    let (mut mn2, mut mx2) = ([0i16; 24], [0i16; 24]);
+    for i in 0..24 {
+        mn2[i] = e[i].min(e[i + 1]);
+        mx2[i] = e[i].max(e[i + 1]);
     }
-    best.clamp(0, 255) as u8
+    let (mut mn4, mut mx4) = ([0i16; 20], [0i16; 20]);
+    for i in 0..20 {
+        mn4[i] = mn2[i].min(mn2[i + 2]);
+        mx4[i] = mx2[i].max(mx2[i + 2]);
+    }
+    let (mut bright, mut dark) = (i16::MIN, i16::MAX);
+    for i in 0..16 {
+        let mn9 = mn4[i].min(mn4[i + 4]).min(e[i + 8]);
+        let mx9 = mx4[i].max(mx4[i + 4]).max(e[i + 8]);
+        bright = bright.max(mn9);
+        dark = dark.min(mx9);
+    }
+    bright.max(-dark).clamp(0, 255) as u8
 }
 
 /// Score map of FAST-9 corners at threshold `t` for centres in `[border, w - border)` ×
@@ -77,37 +85,41 @@ pub fn score_map(img: &[u8], w: usize, h: usize, border: usize, t: u8) -> Vec<u8
         return scores;
     }
     let offs: [isize; 16] = std::array::from_fn(|k| CIRCLE[k].1 * w as isize + CIRCLE[k].0);
-    let t = t as i16;
+    let n = w - 2 * border;
+    let mut flags = vec![0u8; n];
+    let t8 = t;
     for y in border..h - border {
         let row = y * w;
-        for x in border..w - border {
-            let i = row + x;
-            let c = img[i] as i16;
-            let at = |k: usize| img[(i as isize + offs[k]) as usize] as i16;
-            // Any arc of 9 contains two consecutive compass points (0, 4, 8, 12).
-            let (p0, p4, p8, p12) = (at(0), at(4), at(8), at(12));
-            let b = |p: i16| p > c + t;
-            let dk = |p: i16| p < c - t;
-            let bright =
-                (b(p0) && b(p4)) || (b(p4) && b(p8)) || (b(p8) && b(p12)) || (b(p12) && b(p0));
-            let dark = (dk(p0) && dk(p4))
-                || (dk(p4) && dk(p8))
-                || (dk(p8) && dk(p12))
-                || (dk(p12) && dk(p0));
-            if !bright && !dark {
+        let start = row + border;
+        // Branch-free corner test over the whole row (vectorised): masks of the circle pixels
+        // brighter / darker than the centre by more than t, then a search for 9 in a row.
+        {
+            let centre = &img[start..start + n];
+            let circle: [&[u8]; 16] = std::array::from_fn(|k| {
+                let o = (start as isize + offs[k]) as usize;
+                &img[o..o + n]
+            });
+            for (x, f) in flags.iter_mut().enumerate() {
+                let c = centre[x];
+                let (hi, lo) = (c.saturating_add(t8), c.saturating_sub(t8));
+                let (mut mb, mut md) = (0u32, 0u32);
+                for (k, e) in circle.iter().enumerate() {
+                    let p = e[x];
+                    mb |= ((p > hi) as u32) << k;
+                    md |= ((p < lo) as u32) << k;
+                }
+                *f = (has_arc(mb) | has_arc(md)) as u8;
+            }
+        }
+        for (xo, &f) in flags.iter().enumerate() {
+            if f == 0 {
                 continue;
             }
-            let mut d = [0i16; 16];
-            let (mut mb, mut md) = (0u32, 0u32);
-            for (k, dk) in d.iter_mut().enumerate() {
-                let v = at(k) - c;
-                *dk = v;
-                mb |= ((v > t) as u32) << k;
-                md |= ((v < -t) as u32) << k;
-            }
-            if has_arc(mb) || has_arc(md) {
-                scores[i] = score_of(&d).max(1);
-            }
+            let i = start + xo;
+            let c = img[i] as i16;
+            let d: [i16; 16] =
+                std::array::from_fn(|k| img[(i as isize + offs[k]) as usize] as i16 - c);
+            scores[i] = score_of(&d).max(1);
         }
     }
     scores

@@ -10,7 +10,7 @@
 //! 3. Greedy search: a test is kept when its |correlation| with every kept test is below a
 //!    threshold; if fewer than 256 are found, the threshold is raised and the search rerun.
 
-use super::descriptor::{BriefPattern, N_TESTS, PATTERN_RADIUS};
+use super::descriptor::{BriefPattern, N_TESTS, PATTERN_RADIUS, round_offset};
 use crate::error::{Result, SlamError};
 
 /// Parameters of the learning.
@@ -98,8 +98,8 @@ impl TrainingSet {
         let (s, c) = (angle.sin() as f32, angle.cos() as f32);
         for (p, row) in self.positions.iter().zip(self.values.iter_mut()) {
             let (fx, fy) = (p[0] as f32, p[1] as f32);
-            let u = (fx * c - fy * s).round() as isize;
-            let v = (fx * s + fy * c).round() as isize;
+            let u = round_offset(fx * c - fy * s);
+            let v = round_offset(fx * s + fy * c);
             row.push(blurred[(y as isize + v) as usize * w + (x as isize + u) as usize]);
         }
         true

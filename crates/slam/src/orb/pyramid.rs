@@ -190,16 +190,21 @@ pub fn gaussian_blur_7x7(src: &[u8], w: usize, h: usize) -> Vec<u8> {
         }
     }
     let mut out = vec![0u8; w * h];
+    let mut acc = vec![0u32; w];
     for y in 0..h {
-        let idx: [usize; 7] = std::array::from_fn(|k| reflect101(y as isize + k as isize - 3, h));
-        let dst = &mut out[y * w..(y + 1) * w];
-        for (x, d) in dst.iter_mut().enumerate() {
-            let mut acc: u64 = 0;
-            for k in 0..7 {
-                acc += taps[k] as u64 * tmp[idx[k] * w + x] as u64;
+        // Vertical pass as seven whole-row multiply-adds (vectorised); tmp ≤ 255·2^8 and the
+        // taps sum to 2^14, so the sums fit in u32.
+        acc.iter_mut().for_each(|a| *a = 0);
+        for (k, &tap) in taps.iter().enumerate() {
+            let r = reflect101(y as isize + k as isize - 3, h);
+            let src_row = &tmp[r * w..(r + 1) * w];
+            for (a, &v) in acc.iter_mut().zip(src_row) {
+                *a += tap * v as u32;
             }
-            // acc carries 8 + 14 fractional bits.
-            *d = ((acc + (1 << 21)) >> 22).min(255) as u8;
+        }
+        // acc carries 8 + 14 fractional bits.
+        for (d, &a) in out[y * w..(y + 1) * w].iter_mut().zip(&acc) {
+            *d = ((a + (1 << 21)) >> 22).min(255) as u8;
         }
     }
     out
