@@ -1,5 +1,41 @@
-//! Absolute localisation (paper §III-B): the UAV frame is matched against satellite-map tiles,
-//! a homography maps the image centre into the map, and an adaptive confidence
-//! `w = SSIM × mean matching score` sets the next search radius `r = ceil(10^(1-w))`.
+//! Absolute localisation (paper §III-B): the UAV frame, resampled to the map's GSD and turned
+//! north-up, is matched against satellite-map tiles; a homography maps the image centre into
+//! the map; the confidence `w = SSIM × mean matching score` sets the next search radius
+//! `r = ⌈10^(1−w)⌉`.
 //!
-//! Stage boundary only for now: the search arrives with issue #5.
+//! - [`tiles`]: the map, its georeference and tile neighbourhoods;
+//! - [`cache`]: tile features on disk, keyed by detector, weights, config and map;
+//! - [`warp`]: scale/rotation normalisation and homography warps (area-filtered);
+//! - [`candidate`]: one view against one tile (match, homography, checks);
+//! - [`ssim`], [`confidence`]: the confidence and the area prediction;
+//! - [`localizer`], [`search`]: the coarse-to-fine search ([`AbsLocalizer`]);
+//! - [`registry`]: matchers by name (`xfeat-lighterglue`, `orb`, ...);
+//! - [`orb`]: ORB behind the same traits (binary descriptors as 0/1 floats);
+//! - [`dataset`], [`ground_truth`], [`sim_terrain`], [`match_bench`]: dataset readers, true
+//!   homographies and the paper's matcher benchmark (Table V protocol).
+
+pub mod cache;
+pub mod candidate;
+pub mod confidence;
+pub mod dataset;
+pub mod error;
+pub mod ground_truth;
+pub mod localizer;
+pub mod match_bench;
+pub mod orb;
+pub mod pipeline;
+pub mod registry;
+pub mod search;
+pub mod sim_terrain;
+pub mod ssim;
+pub mod tiles;
+pub mod warp;
+
+pub use cache::CacheStatus;
+pub use confidence::{ConfidenceMode, search_radius};
+pub use error::{AbslocError, Result};
+pub use localizer::{
+    AbsLocConfig, AbsLocalizer, Failure, FailureReason, Fix, Outcome, Prior, heading_from_rotation,
+};
+pub use pipeline::FeaturePipeline;
+pub use tiles::{MapTile, MapTiles};

@@ -2,7 +2,9 @@
 //!
 //! One subcommand per file; each exposes `Args` (clap) and `run`.
 
+mod absloc;
 mod eval;
+mod matching;
 mod models;
 mod sim;
 mod vo;
@@ -22,8 +24,12 @@ struct Cli {
 
 #[derive(Debug, Subcommand)]
 enum Command {
+    /// Absolute localisation only: per-frame fixes against the satellite map, with confidence.
+    Absloc(absloc::Args),
     /// APE/RPE of a trajectory against ground truth (same numbers as evo_ape / evo_rpe).
     Eval(eval::Args),
+    /// Matcher benchmark on image pairs with a known homography (@N px, ms per pair).
+    Match(matching::Args),
     /// Install (`fetch`) or show (`list`) the pretrained weights and the ONNX Runtime library.
     Models(models::Args),
     /// Generate a simulated Mars dataset: terrain, satellite map + tiles, UAV images, ground truth.
@@ -41,7 +47,9 @@ fn main() -> std::process::ExitCode {
         .with_writer(std::io::stderr)
         .init();
     let result = match cli.command {
+        Command::Absloc(args) => absloc::run(args),
         Command::Eval(args) => eval::run(args),
+        Command::Match(args) => matching::run(args),
         Command::Models(args) => models::run(args),
         Command::Sim(args) => sim::run(args),
         Command::Vo(args) => vo::run(args),

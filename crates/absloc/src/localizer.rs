@@ -1,0 +1,648 @@
+//! The coarse-to-fine search of paper §III-B: candidate tiles around the last best tile (radius
+//! from the last confidence), the whole map when there is no prior or the local search fails,
+//! or tiles around a predicted position; per tile, match + homography + checks; the tile with
+//! the most inliers gives the fix, the confidence and the next radius.
+//!
+//! The frame is first resampled to the map's GSD (altimeter and focal length) and turned
+//! north-up (heading from the caller's prior, else the last fix, else a sweep of
+//! `rotation_hypotheses` angles): learned matchers are neither scale- nor rotation-invariant.
+
+use std::path::PathBuf;
+use std::time::Instant;
+
+use image::GrayImage;
+use jointloc_geometry::PinholeCamera;
+use jointloc_geometry::homography::HomographyConfig;
+use nalgebra::{Matrix3, Point2};
+use serde::{Deserialize, Serialize};
+
+use crate::cache::{self, CacheStatus};
+use crate::candidate::{AcceptConfig, Candidate, MatchContext, QueryView, Rejection};
+use crate::confidence::{ConfidenceMode, RADIUS_RANGE, search_radius};
+use crate::error::{AbslocError, Result};
+use crate::pipeline::FeaturePipeline;
+use crate::search::{self, SearchInput};
+use crate::ssim::{SsimConfig, ssim_masked};
+use crate::tiles::MapTiles;
+use crate::warp::warp_into_map;
+
+/// Settings of [`AbsLocalizer`].
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct AbsLocConfig {
+    /// How the confidence is computed (the paper: `adaptive`).
+    pub confidence: ConfidenceMode,
+    /// Search only around the last best tile with radius `⌈10^(1−w)⌉` (the paper's area
+    /// prediction). Off: every frame searches the whole map.
+    pub area_prediction: bool,
+    /// Search the whole map when the local search finds nothing.
+    pub global_fallback: bool,
+    /// Resample the frame to the map's GSD before matching (off: native scale, as the
+    /// reference code). Measured better (see the crate README figures), so on by default.
+    pub scale_normalisation: bool,
+    /// Angles tried when no heading is known (start, after a failure): 8 gives ≤ 22.5° of
+    /// residual rotation.
+    pub rotation_hypotheses: usize,
+    /// Use the last fix's heading when the caller gives none.
+    pub use_last_heading: bool,
+    /// Frames whose grey-level standard deviation is below this are failed at once (all black,
+    /// all white, lens cap): nothing to match.
+    pub min_texture_std: f64,
+    /// Evaluate candidate tiles in parallel (rayon).
+    pub parallel: bool,
+    /// Stop a search once a tile has this many inliers and the image centre maps into its
+    /// central 60 % (see [`crate::search`]); candidates are tried nearest to the last fix (or
+    /// the prior) first. `None` matches every candidate, as the paper does.
+    pub early_stop_inliers: Option<usize>,
+    /// Tile feature cache on disk (see [`crate::cache`]).
+    pub cache: bool,
+    /// Cache folder; default `<map folder>/jointloc-cache`.
+    pub cache_dir: Option<PathBuf>,
+    /// Acceptance rules per tile.
+    pub accept: AcceptConfig,
+    /// Homography estimation (threshold in map pixels).
+    pub homography: HomographyConfig,
+    /// SSIM window and constants.
+    pub ssim: SsimConfig,
+}
+
+impl Default for AbsLocConfig {
+    fn default() -> Self {
+        Self {
+            confidence: ConfidenceMode::Adaptive,
+            area_prediction: true,
+            global_fallback: true,
+            scale_normalisation: true,
+            rotation_hypotheses: 8,
+            use_last_heading: true,
+            min_texture_std: 2.0,
+            parallel: true,
+            early_stop_inliers: Some(40),
+            cache: true,
+            cache_dir: None,
+            accept: AcceptConfig::default(),
+            homography: HomographyConfig::default(),
+            ssim: SsimConfig::default(),
+        }
+    }
+}
+
+impl AbsLocConfig {
+    /// Checks ranges.
+    pub fn validate(&self) -> Result<()> {
+        let bad = |field: &'static str, value: String, reason: &str| AbslocError::InvalidConfig {
+            field,
+            value,
+            reason: reason.into(),
+        };
+        if self.rotation_hypotheses == 0 {
+            return Err(bad("rotation_hypotheses", "0".into(), "must be ≥ 1"));
+        }
+        if !(self.min_texture_std.is_finite() && self.min_texture_std >= 0.0) {
+            return Err(bad(
+                "min_texture_std",
+                self.min_texture_std.to_string(),
+                "must be ≥ 0",
+            ));
+        }
+        let a = &self.accept;
+        if !(a.max_log_scale_error > 0.0 && a.max_anisotropy >= 1.0 && a.border_margin_px >= 0.0) {
+            return Err(bad(
+                "accept",
+                format!("{a:?}"),
+                "scale error > 0, anisotropy ≥ 1, margin ≥ 0",
+            ));
+        }
+        if !(self.ssim.sigma > 0.0 && self.ssim.range > 0.0) {
+            return Err(bad(
+                "ssim",
+                format!("{:?}", self.ssim),
+                "sigma and range must be > 0",
+            ));
+        }
+        self.homography.ransac.validate()?;
+        Ok(())
+    }
+}
+
+/// What the caller knows before the search (e.g. from the fused pose).
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct Prior {
+    /// Predicted world `(x, y)`, metres: the search centres on the tile nearest to it.
+    pub position: Option<[f64; 2]>,
+    /// Heading: the angle (radians) that turns frame axes into map axes (image convention, x
+    /// towards y); see [`heading_from_rotation`].
+    pub heading: Option<f64>,
+}
+
+/// An absolute fix.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Fix {
+    /// World `(x, y, z)`: the map point under the image centre, z from the altimeter.
+    pub position: [f64; 3],
+    /// `w` under the configured mode, in [0, 1].
+    pub confidence: f64,
+    /// SSIM between the map and the warped frame (unclamped, in [−1, 1]).
+    pub ssim: f64,
+    /// Mean matching score of the inliers.
+    pub match_score: f64,
+    /// Tile index (the `<idx>` of its file name).
+    pub tile: usize,
+    /// RANSAC inliers of the winning tile.
+    pub inliers: usize,
+    /// Tiles matched for this fix (all hypotheses and the fallback included).
+    pub searched_tiles: usize,
+    /// Whether the whole map was searched.
+    pub global: bool,
+    /// Frame → map pixels.
+    pub homography: Matrix3<f64>,
+    /// Rotation frame → map (radians) and scale (map pixels per frame pixel) at the centre.
+    pub heading: f64,
+    pub scale: f64,
+    /// Radius of the next search.
+    pub next_radius: u32,
+    /// Wall time of the call, milliseconds.
+    pub ms: f64,
+}
+
+impl Fix {
+    /// Camera-to-world rotation of a nadir camera with this heading (optical axis straight
+    /// down, image x axis along the heading in the map): the absolute fix measures no tilt.
+    pub fn orientation(&self) -> nalgebra::UnitQuaternion<f64> {
+        let (s, c) = self.heading.sin_cos();
+        // Map axes (u east, v south) to world (x east, y north): image x = (c, −s, 0).
+        let m = nalgebra::Matrix3::new(c, -s, 0.0, -s, -c, 0.0, 0.0, 0.0, -1.0);
+        nalgebra::UnitQuaternion::from_matrix(&m)
+    }
+}
+
+/// Why no fix was found.
+#[derive(Debug, Clone, PartialEq)]
+pub enum FailureReason {
+    /// The frame has (almost) no texture.
+    Textureless { std: f64 },
+    /// No tile passed the checks; the best rejection seen.
+    NoMatch { best: Option<Rejection> },
+}
+
+/// A failed search: confidence 0, never a stale position.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Failure {
+    pub reason: FailureReason,
+    pub searched_tiles: usize,
+    pub global: bool,
+    pub next_radius: u32,
+    pub ms: f64,
+}
+
+/// Result of [`AbsLocalizer::localize`].
+#[derive(Debug, Clone, PartialEq)]
+pub enum Outcome {
+    Fix(Fix),
+    Failed(Failure),
+}
+
+impl Outcome {
+    /// `w`; 0 for a failure.
+    pub fn confidence(&self) -> f64 {
+        match self {
+            Outcome::Fix(f) => f.confidence,
+            Outcome::Failed(_) => 0.0,
+        }
+    }
+
+    /// The fix, if any.
+    pub fn fix(&self) -> Option<&Fix> {
+        match self {
+            Outcome::Fix(f) => Some(f),
+            Outcome::Failed(_) => None,
+        }
+    }
+
+    /// Milliseconds spent.
+    pub fn ms(&self) -> f64 {
+        match self {
+            Outcome::Fix(f) => f.ms,
+            Outcome::Failed(f) => f.ms,
+        }
+    }
+
+    /// Tiles matched.
+    pub fn searched_tiles(&self) -> usize {
+        match self {
+            Outcome::Fix(f) => f.searched_tiles,
+            Outcome::Failed(f) => f.searched_tiles,
+        }
+    }
+}
+
+/// The heading (see [`Prior::heading`]) of a camera with camera-to-world rotation `r_wc`: the
+/// angle of its image x axis in map axes (map u = world x, map v = −world y).
+pub fn heading_from_rotation(r_wc: &nalgebra::Rotation3<f64>) -> f64 {
+    let x = r_wc.matrix().column(0);
+    (-x[1]).atan2(x[0])
+}
+
+#[derive(Debug, Clone, Default)]
+struct SearchState {
+    last_tile: Option<usize>,
+    /// World (x, y) of the last fix: local candidates are tried nearest to it first.
+    last_position: Option<(f64, f64)>,
+    radius: u32,
+    heading: Option<f64>,
+}
+
+/// Absolute localisation against one map with one matching pipeline.
+#[derive(Debug)]
+pub struct AbsLocalizer {
+    tiles: MapTiles,
+    camera: PinholeCamera,
+    pipeline: FeaturePipeline,
+    config: AbsLocConfig,
+    tile_features: Vec<jointloc_features::Features>,
+    cache_status: CacheStatus,
+    state: SearchState,
+}
+
+impl AbsLocalizer {
+    /// Prepares the search: checks that the frame size equals the tile size and loads (or
+    /// extracts and caches) the tile features.
+    pub fn new(
+        tiles: MapTiles,
+        camera: PinholeCamera,
+        pipeline: FeaturePipeline,
+        config: AbsLocConfig,
+    ) -> Result<Self> {
+        config.validate()?;
+        tiles.check_frame_size(camera.width, camera.height)?;
+        if !(camera.fx.is_finite() && camera.fx > 0.0 && camera.fy.is_finite() && camera.fy > 0.0) {
+            return Err(AbslocError::InvalidConfig {
+                field: "camera",
+                value: format!("fx {} fy {}", camera.fx, camera.fy),
+                reason: "focal lengths must be finite and > 0".into(),
+            });
+        }
+        let key = cache::cache_key(&tiles, &pipeline.detector_key);
+        let path = config
+            .cache
+            .then(|| cache::cache_path(&tiles, config.cache_dir.as_deref(), &pipeline.detector_id));
+        let loaded =
+            cache::load_or_build(&tiles, pipeline.detector.as_ref(), &key, path.as_deref())?;
+        tracing::info!(
+            tiles = tiles.len(),
+            status = ?loaded.status,
+            matcher = %pipeline.name,
+            "tile features ready"
+        );
+        Ok(Self {
+            tiles,
+            camera,
+            pipeline,
+            config,
+            tile_features: loaded.features,
+            cache_status: loaded.status,
+            state: SearchState {
+                radius: RADIUS_RANGE.1,
+                ..Default::default()
+            },
+        })
+    }
+
+    /// The map.
+    pub fn tiles(&self) -> &MapTiles {
+        &self.tiles
+    }
+
+    /// The configuration.
+    pub fn config(&self) -> &AbsLocConfig {
+        &self.config
+    }
+
+    /// The matching pipeline.
+    pub fn pipeline(&self) -> &FeaturePipeline {
+        &self.pipeline
+    }
+
+    /// How the tile features were obtained.
+    pub fn cache_status(&self) -> CacheStatus {
+        self.cache_status
+    }
+
+    /// Features of every tile (tile pixels).
+    pub fn tile_features(&self) -> &[jointloc_features::Features] {
+        &self.tile_features
+    }
+
+    /// Forgets the last tile, radius and heading (the next search is global).
+    pub fn reset(&mut self) {
+        self.state = SearchState {
+            radius: RADIUS_RANGE.1,
+            ..Default::default()
+        };
+    }
+
+    /// Frame-to-map scale (map pixels per frame pixel at the image centre) at `altitude`.
+    pub fn expected_scale(&self, altitude: f64) -> f64 {
+        let f = 0.5 * (self.camera.fx + self.camera.fy);
+        altitude / (f * self.tiles.gsd_m())
+    }
+
+    /// Localises one frame. Errors on unusable input (frame size, altitude); a search that
+    /// finds nothing returns [`Outcome::Failed`] (confidence 0) and widens the next search.
+    pub fn localize(&mut self, frame: &GrayImage, altitude: f64, prior: &Prior) -> Result<Outcome> {
+        let start = Instant::now();
+        self.tiles.check_frame_size(frame.width(), frame.height())?;
+        if !(altitude.is_finite() && altitude > 0.0) {
+            return Err(AbslocError::InvalidAltitude { value: altitude });
+        }
+        let std = grey_std(frame);
+        if std < self.config.min_texture_std {
+            tracing::debug!(std, "frame without texture: no fix");
+            return Ok(self.fail(FailureReason::Textureless { std }, 0, false, start));
+        }
+        let expected = self.expected_scale(altitude);
+        let scale = if self.config.scale_normalisation {
+            expected
+        } else {
+            1.0
+        };
+        let own_heading = self
+            .config
+            .use_last_heading
+            .then_some(self.state.heading)
+            .flatten();
+        let heading = prior.heading.or(own_heading);
+        let sweep = self.sweep_angles();
+        let first_angles = heading.map_or_else(|| sweep.clone(), |h| vec![h]);
+
+        let all: Vec<usize> = self.tiles.all(prior.position.map(|p| (p[0], p[1])));
+        let local = if !self.config.area_prediction {
+            None
+        } else if let Some([x, y]) = prior.position {
+            Some(self.tiles.around_world(x, y, self.state.radius))
+        } else {
+            self.state.last_tile.map(|t| {
+                let mut near = self.tiles.neighbourhood(t, self.state.radius);
+                if let Some((x, y)) = self.state.last_position {
+                    self.tiles.order_by_distance(&mut near, x, y);
+                }
+                near
+            })
+        };
+        let mut views: Vec<(f64, QueryView)> = Vec::new();
+        let mut searched = 0usize;
+        let mut best_rejection: Option<Rejection> = None;
+        let local_is_all = local.as_ref().is_none_or(|l| l.len() >= all.len());
+        let first = local.clone().unwrap_or_else(|| all.clone());
+        let mut found = self.search(
+            frame,
+            &first,
+            &first_angles,
+            scale,
+            expected,
+            true,
+            &mut views,
+            &mut searched,
+            &mut best_rejection,
+        )?;
+        let mut global = local_is_all;
+        // Retry everywhere, with the rotation sweep unless the caller fixed the heading; not
+        // when that is exactly what was just searched.
+        let same_again = local_is_all && (heading.is_none() || prior.heading.is_some());
+        if found.is_none() && self.config.global_fallback && !same_again {
+            let angles = if prior.heading.is_some() {
+                first_angles.clone()
+            } else {
+                sweep
+            };
+            tracing::debug!(
+                tiles = all.len(),
+                angles = angles.len(),
+                "local search failed: global search"
+            );
+            found = self.search(
+                frame,
+                &all,
+                &angles,
+                scale,
+                expected,
+                true,
+                &mut views,
+                &mut searched,
+                &mut best_rejection,
+            )?;
+            global = true;
+        }
+        let Some(best) = found else {
+            return Ok(self.fail(
+                FailureReason::NoMatch {
+                    best: best_rejection,
+                },
+                searched,
+                global,
+                start,
+            ));
+        };
+        let fix = self.finish(frame, &best, altitude, searched, global, start);
+        Ok(Outcome::Fix(fix))
+    }
+
+    fn sweep_angles(&self) -> Vec<f64> {
+        let n = self.config.rotation_hypotheses;
+        (0..n)
+            .map(|i| i as f64 * std::f64::consts::TAU / n as f64)
+            .collect()
+    }
+
+    /// Best accepted candidate over `tiles` × `angles` (views are detected once per angle and
+    /// kept in `views` for reuse by a later pass); `early` allows the early stop.
+    #[allow(clippy::too_many_arguments)]
+    fn search(
+        &self,
+        frame: &GrayImage,
+        tiles: &[usize],
+        angles: &[f64],
+        scale: f64,
+        expected: f64,
+        early: bool,
+        views: &mut Vec<(f64, QueryView)>,
+        searched: &mut usize,
+        best_rejection: &mut Option<Rejection>,
+    ) -> Result<Option<Candidate>> {
+        let principal = (self.camera.cx, self.camera.cy);
+        let mut view_ids = Vec::with_capacity(angles.len());
+        for &a in angles {
+            let id = match views.iter().position(|(b, _)| angle_eq(*b, a)) {
+                Some(id) => id,
+                None => {
+                    let v = QueryView::new(
+                        frame,
+                        self.pipeline.detector.as_ref(),
+                        principal,
+                        scale,
+                        a,
+                        self.config.accept.border_margin_px,
+                    )?;
+                    views.push((a, v));
+                    views.len() - 1
+                }
+            };
+            view_ids.push(id);
+        }
+        let input = SearchInput {
+            tiles: &self.tiles,
+            tile_features: &self.tile_features,
+            ctx: MatchContext {
+                matcher: self.pipeline.matcher.as_ref(),
+                homography: &self.config.homography,
+                accept: &self.config.accept,
+                principal,
+                expected_scale: Some(expected),
+            },
+            parallel: self.config.parallel,
+            early_stop_inliers: if early {
+                self.config.early_stop_inliers
+            } else {
+                None
+            },
+        };
+        // Nearest tiles first, every angle of a tile before the next tile.
+        let jobs: Vec<(usize, usize)> = tiles
+            .iter()
+            .flat_map(|&t| view_ids.iter().map(move |&v| (v, t)))
+            .collect();
+        let view_refs: Vec<&QueryView> = views.iter().map(|(_, v)| v).collect();
+        let result = search::run(&input, &view_refs, &jobs)?;
+        *searched += result.evaluated;
+        if let Some(r) = result.best_rejection
+            && result.best.is_none()
+        {
+            *best_rejection = Some(r);
+        }
+        Ok(result.best)
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    fn finish(
+        &mut self,
+        frame: &GrayImage,
+        best: &Candidate,
+        altitude: f64,
+        searched: usize,
+        global: bool,
+        start: Instant,
+    ) -> Fix {
+        let h = best.h_map_from_frame;
+        let c = h * Point2::new(self.camera.cx, self.camera.cy).to_homogeneous();
+        let (u, v) = (c.x / c.z, c.y / c.z);
+        let (x, y) = self.tiles.pixel_to_world(u, v);
+        let ssim = self.ssim_of(frame, &h, best.scale).unwrap_or(0.0);
+        let match_score = if best.inliers.is_empty() {
+            0.0
+        } else {
+            best.inliers
+                .iter()
+                .map(|&i| best.matches.scores.get(i).copied().unwrap_or(0.0) as f64)
+                .sum::<f64>()
+                / best.inliers.len() as f64
+        };
+        let confidence = self.config.confidence.confidence(ssim, match_score);
+        let next_radius = search_radius(confidence);
+        let tile = self.tiles.tiles()[best.tile].index;
+        self.state = SearchState {
+            last_tile: Some(best.tile),
+            last_position: Some((x, y)),
+            radius: next_radius,
+            heading: Some(best.heading),
+        };
+        let fix = Fix {
+            position: [x, y, altitude],
+            confidence,
+            ssim,
+            match_score,
+            tile,
+            inliers: best.inliers.len(),
+            searched_tiles: searched,
+            global,
+            homography: h,
+            heading: best.heading,
+            scale: best.scale,
+            next_radius,
+            ms: start.elapsed().as_secs_f64() * 1e3,
+        };
+        tracing::debug!(?fix.position, fix.confidence, fix.tile, fix.inliers, fix.searched_tiles, "fix");
+        fix
+    }
+
+    /// SSIM between the map under the warped frame and the warped frame (area-filtered to map
+    /// pixels), over the map pixels the frame covers.
+    fn ssim_of(&self, frame: &GrayImage, h: &Matrix3<f64>, scale: f64) -> Option<f64> {
+        let (fw, fh) = (frame.width() as f64, frame.height() as f64);
+        let corners: Vec<(f64, f64)> = [
+            (0.0, 0.0),
+            (fw - 1.0, 0.0),
+            (fw - 1.0, fh - 1.0),
+            (0.0, fh - 1.0),
+        ]
+        .iter()
+        .map(|&(x, y)| {
+            let q = h * Point2::new(x, y).to_homogeneous();
+            (q.x / q.z, q.y / q.z)
+        })
+        .collect();
+        let map = self.tiles.map();
+        let (mw, mh) = (map.width() as f64, map.height() as f64);
+        let lo = |f: fn(&(f64, f64)) -> f64| corners.iter().map(f).fold(f64::INFINITY, f64::min);
+        let hi =
+            |f: fn(&(f64, f64)) -> f64| corners.iter().map(f).fold(f64::NEG_INFINITY, f64::max);
+        let x0 = lo(|c| c.0).floor().max(0.0);
+        let y0 = lo(|c| c.1).floor().max(0.0);
+        let x1 = hi(|c| c.0).ceil().min(mw - 1.0);
+        let y1 = hi(|c| c.1).ceil().min(mh - 1.0);
+        if !(x1 > x0 && y1 > y0) {
+            return None;
+        }
+        let (w, hgt) = ((x1 - x0) as usize + 1, (y1 - y0) as usize + 1);
+        let k = (1.0 / scale).ceil().max(1.0) as usize;
+        let (warped, mask) = warp_into_map(frame, h, (x0 as u32, y0 as u32), (w, hgt), k)?;
+        let region: Vec<f32> = (0..hgt)
+            .flat_map(|r| (0..w).map(move |c| (c, r)))
+            .map(|(c, r)| map.get_pixel(x0 as u32 + c as u32, y0 as u32 + r as u32)[0] as f32)
+            .collect();
+        ssim_masked(&region, &warped, w, hgt, Some(&mask), &self.config.ssim)
+    }
+
+    fn fail(
+        &mut self,
+        reason: FailureReason,
+        searched: usize,
+        global: bool,
+        start: Instant,
+    ) -> Outcome {
+        // w = 0: the widest radius next time; the last tile stays as the search centre.
+        let next_radius = search_radius(0.0);
+        self.state.radius = next_radius;
+        self.state.heading = None;
+        tracing::debug!(?reason, searched, "no fix");
+        Outcome::Failed(Failure {
+            reason,
+            searched_tiles: searched,
+            global,
+            next_radius,
+            ms: start.elapsed().as_secs_f64() * 1e3,
+        })
+    }
+}
+
+/// Standard deviation of the grey levels.
+fn grey_std(img: &GrayImage) -> f64 {
+    let raw = img.as_raw();
+    let n = raw.len().max(1) as f64;
+    let mean = raw.iter().map(|&p| p as f64).sum::<f64>() / n;
+    (raw.iter().map(|&p| (p as f64 - mean).powi(2)).sum::<f64>() / n).sqrt()
+}
+
+fn angle_eq(a: f64, b: f64) -> bool {
+    let d = (a - b).rem_euclid(std::f64::consts::TAU);
+    d < 1e-9 || std::f64::consts::TAU - d < 1e-9
+}

@@ -1,0 +1,76 @@
+//! Shared test material: a random texture standing in for a map, frames cut from it by a known
+//! similarity, and a small simulated dataset generated once per test binary.
+
+#![allow(dead_code)]
+
+use std::path::Path;
+use std::sync::OnceLock;
+
+use image::GrayImage;
+use jointloc_sim::dataset::{SimConfig, generate_dataset};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
+/// A non-repeating texture: random lattices at three scales, bilinearly interpolated.
+pub fn texture(w: u32, h: u32, seed: u64) -> GrayImage {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let layers: Vec<(f64, f64, usize, Vec<f64>)> = [(40.0, 90.0), (9.0, 80.0), (3.0, 50.0)]
+        .iter()
+        .map(|&(cell, amp)| {
+            let n = (w.max(h) as f64 / cell).ceil() as usize + 2;
+            let g = (0..n * n).map(|_| rng.random_range(0.0..1.0)).collect();
+            (cell, amp, n, g)
+        })
+        .collect();
+    GrayImage::from_fn(w, h, |x, y| {
+        let mut v = 20.0;
+        for (cell, amp, n, g) in &layers {
+            let (fx, fy) = (x as f64 / cell, y as f64 / cell);
+            let (x0, y0) = (fx.floor() as usize, fy.floor() as usize);
+            let (tx, ty) = (fx - x0 as f64, fy - y0 as f64);
+            let at = |i: usize, j: usize| g[j.min(n - 1) * n + i.min(n - 1)];
+            v += amp
+                * ((at(x0, y0) * (1.0 - tx) + at(x0 + 1, y0) * tx) * (1.0 - ty)
+                    + (at(x0, y0 + 1) * (1.0 - tx) + at(x0 + 1, y0 + 1) * tx) * ty);
+        }
+        image::Luma([v.clamp(0.0, 255.0) as u8])
+    })
+}
+
+/// A `size × size` nadir frame of `map` (GSD `gsd`) centred on map pixel `centre`, with
+/// `scale` map pixels per frame pixel and the frame's x axis at `heading` in the map.
+pub fn frame_from_map(
+    map: &GrayImage,
+    centre: (f64, f64),
+    scale: f64,
+    heading: f64,
+    size: u32,
+) -> GrayImage {
+    let (s, c) = heading.sin_cos();
+    let half = (size as f64 - 1.0) / 2.0;
+    GrayImage::from_fn(size, size, |x, y| {
+        let (dx, dy) = (x as f64 - half, y as f64 - half);
+        let u = centre.0 + scale * (c * dx - s * dy);
+        let v = centre.1 + scale * (s * dx + c * dy);
+        let p = jointloc_absloc::warp::bilinear(map, u, v).unwrap_or(0.0);
+        image::Luma([p.round() as u8])
+    })
+}
+
+/// A small simulated dataset (crater, easy, 8 m at 1 Hz: 9 frames of 500 × 500), generated
+/// once per test binary into a temporary folder.
+pub fn sim_dataset() -> &'static Path {
+    static DIR: OnceLock<tempfile::TempDir> = OnceLock::new();
+    DIR.get_or_init(|| {
+        let dir = tempfile::tempdir().unwrap();
+        let mut cfg = SimConfig {
+            seed: 20261122,
+            ..Default::default()
+        };
+        cfg.trajectory.length_m = 8.0;
+        cfg.trajectory.rate_hz = 1.0;
+        generate_dataset(&cfg, dir.path(), &mut |_, _, _| {}).unwrap();
+        dir
+    })
+    .path()
+}

@@ -1,0 +1,117 @@
+//! On a small simulated dataset (generated here): the map's georeference agrees with the
+//! simulator's ground truth, and absolute localisation with real matchers lands within
+//! centimetres of the true positions.
+
+mod common;
+
+use common::sim_dataset;
+use jointloc_absloc::dataset::UavDataset;
+use jointloc_absloc::ground_truth::plane_homography;
+use jointloc_absloc::registry::{RegistryOptions, resolve};
+use jointloc_absloc::{AbsLocConfig, AbsLocalizer, MapTiles, Prior};
+use jointloc_sim::MapInfo;
+
+#[test]
+fn georeference_agrees_with_the_ground_truth() {
+    let dir = sim_dataset();
+    let tiles = MapTiles::open(dir).unwrap();
+    let info = MapInfo::read(&dir.join("map.toml")).unwrap();
+    // Tiles cut from satellite.png are the tile files the simulator wrote.
+    for (i, t) in tiles.tiles().iter().enumerate() {
+        let file = dir
+            .join("satellite")
+            .join(format!("{}_{}_{}.png", t.index, t.x, t.y));
+        assert_eq!(
+            image::open(&file).unwrap().into_luma8(),
+            tiles.tile_image(i),
+            "{}",
+            file.display()
+        );
+    }
+    let ds = UavDataset::open(dir).unwrap();
+    assert!(ds.has_altimeter && ds.has_ground_truth);
+    for f in &ds.frames {
+        let pose = f.ground_truth.unwrap();
+        let c = pose.centre();
+        let (u, v) = tiles.world_to_pixel(c.x, c.y);
+        assert_eq!((u, v), info.world_to_pixel(c.x, c.y));
+        let (x, y) = tiles.pixel_to_world(u, v);
+        assert!((x - c.x).abs() < 1e-9 && (y - c.y).abs() < 1e-9);
+        // A nadir camera (attitude jitter ≤ ~1°) sees the ground under itself at the principal
+        // point: the ground-plane homography of the true pose maps it within a few centimetres.
+        let h =
+            plane_homography(&pose, &ds.camera, tiles.gsd_m(), c.z - f.altitude.unwrap()).unwrap();
+        let q = h * nalgebra::Point2::new(ds.camera.cx, ds.camera.cy).to_homogeneous();
+        let (gx, gy) = tiles.pixel_to_world(q.x / q.z, q.y / q.z);
+        let off = ((gx - c.x).powi(2) + (gy - c.y).powi(2)).sqrt();
+        assert!(
+            off < 0.25,
+            "{}: principal ray meets the ground {off} m away",
+            f.path.display()
+        );
+        // The tile nearest to the camera contains its nadir point.
+        let t = tiles.tiles()[tiles.nearest(c.x, c.y, 1)[0]];
+        assert!(
+            u >= t.x as f64
+                && u <= (t.x + 500) as f64
+                && v >= t.y as f64
+                && v <= (t.y + 500) as f64
+        );
+    }
+}
+
+/// Localises every frame with `matcher`; returns the 2-D errors.
+fn run(matcher: &str) -> Vec<f64> {
+    let dir = sim_dataset();
+    let opts = RegistryOptions {
+        models_dir: (matcher != "orb").then(|| {
+            jointloc_features::models::ready_store()
+                .expect("model store (jointloc models fetch)")
+                .dir()
+                .to_path_buf()
+        }),
+        ..Default::default()
+    };
+    let pipeline = resolve(matcher, &opts).unwrap();
+    let ds = UavDataset::open(dir).unwrap();
+    let tiles = MapTiles::open(dir).unwrap();
+    let cache_dir = tempfile::tempdir().unwrap();
+    let config = AbsLocConfig {
+        cache_dir: Some(cache_dir.path().to_path_buf()),
+        ..Default::default()
+    };
+    let mut loc = AbsLocalizer::new(tiles, ds.camera, pipeline, config).unwrap();
+    ds.frames
+        .iter()
+        .map(|f| {
+            let img = image::open(&f.path).unwrap().into_luma8();
+            let out = loc
+                .localize(&img, f.altitude.unwrap(), &Prior::default())
+                .unwrap();
+            let fix = out
+                .fix()
+                .unwrap_or_else(|| panic!("{matcher}: {}: {out:?}", f.path.display()));
+            let c = f.ground_truth.unwrap().centre();
+            ((fix.position[0] - c.x).powi(2) + (fix.position[1] - c.y).powi(2)).sqrt()
+        })
+        .collect()
+}
+
+fn check(matcher: &str, errors: &[f64]) {
+    let rmse = (errors.iter().map(|e| e * e).sum::<f64>() / errors.len() as f64).sqrt();
+    let max = errors.iter().copied().fold(0.0, f64::max);
+    assert!(
+        rmse < 0.3 && max < 0.6,
+        "{matcher}: rmse {rmse} m, max {max} m: {errors:?}"
+    );
+}
+
+#[test]
+fn orb_localises_every_frame() {
+    check("orb", &run("orb"));
+}
+
+#[test]
+fn xfeat_mnn_localises_every_frame() {
+    check("xfeat-mnn", &run("xfeat-mnn"));
+}

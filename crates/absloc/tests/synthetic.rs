@@ -1,0 +1,197 @@
+//! The search on a synthetic map: frames cut from a random texture at a known position, scale
+//! and heading, matched with ORB (no model files needed). Checks positions, heading recovery
+//! from the rotation sweep, the local search after the first fix, area prediction and the
+//! failure semantics.
+
+mod common;
+
+use std::path::Path;
+
+use common::{frame_from_map, texture};
+use jointloc_absloc::registry::{RegistryOptions, resolve};
+use jointloc_absloc::{AbsLocConfig, AbsLocalizer, FailureReason, MapTiles, Outcome, Prior};
+use jointloc_geometry::PinholeCamera;
+
+const GSD: f64 = 0.05;
+const ALT: f64 = 10.0;
+
+/// A map of `side × side` pixels (1000: 3 × 3 tiles, 2000: 7 × 7).
+fn localizer(seed: u64, side: u32, config: AbsLocConfig) -> AbsLocalizer {
+    let map = MapTiles::from_image(
+        texture(side, side, seed),
+        GSD,
+        (500, 500),
+        0.5,
+        Path::new("."),
+    )
+    .unwrap();
+    let pipeline = resolve("orb", &RegistryOptions::default()).unwrap();
+    AbsLocalizer::new(
+        map,
+        PinholeCamera::ideal(500.0, 500, 500),
+        pipeline,
+        AbsLocConfig {
+            cache: false,
+            ..config
+        },
+    )
+    .unwrap()
+}
+
+/// Frame at map pixel `(u, v)` with `heading`.
+fn frame(loc: &AbsLocalizer, u: f64, v: f64, heading: f64) -> image::GrayImage {
+    frame_from_map(loc.tiles().map(), (u, v), ALT / (500.0 * GSD), heading, 500)
+}
+
+#[test]
+fn fixes_follow_a_turning_path_on_several_maps() {
+    for seed in [1, 2, 3] {
+        let mut loc = localizer(seed, 2000, AbsLocConfig::default());
+        // A curved path with the heading turning along it, from an unknown start.
+        let mut searched_after_first = Vec::new();
+        for k in 0..6 {
+            let t = k as f64;
+            let (u, v) = (830.0 + 60.0 * t, 900.0 + 25.0 * t + 4.0 * t * t);
+            let heading = 0.9 + 0.12 * t;
+            let out = loc
+                .localize(&frame(&loc, u, v, heading), ALT, &Prior::default())
+                .unwrap();
+            let fix = out
+                .fix()
+                .unwrap_or_else(|| panic!("seed {seed} frame {k}: {out:?}"));
+            let (x, y) = loc.tiles().pixel_to_world(u, v);
+            let err = ((fix.position[0] - x).powi(2) + (fix.position[1] - y).powi(2)).sqrt();
+            assert!(err < 0.15, "seed {seed} frame {k}: error {err} m");
+            assert_eq!(fix.position[2], ALT);
+            let dh = (fix.heading - heading + std::f64::consts::PI)
+                .rem_euclid(std::f64::consts::TAU)
+                - std::f64::consts::PI;
+            assert!(
+                dh.abs() < 0.02,
+                "seed {seed} frame {k}: heading off by {dh}"
+            );
+            assert!((fix.scale - 0.4).abs() < 0.01);
+            assert!(fix.confidence > 0.0 && fix.confidence <= 1.0);
+            assert_eq!(
+                fix.next_radius,
+                jointloc_absloc::search_radius(fix.confidence)
+            );
+            if k == 0 {
+                // No prior: whole map, rotation sweep.
+                assert!(fix.global);
+                assert!(fix.searched_tiles > 8);
+            } else {
+                assert!(!fix.global, "seed {seed} frame {k}: local search expected");
+                searched_after_first.push(fix.searched_tiles);
+            }
+        }
+        // With the last position and heading known, later fixes match a few tiles nearest to
+        // the last fix (a decisive one ends the search).
+        assert!(
+            searched_after_first.iter().all(|&n| n <= 4),
+            "{searched_after_first:?}"
+        );
+    }
+}
+
+#[test]
+fn without_area_prediction_every_search_is_global() {
+    let mut loc = localizer(
+        4,
+        1000,
+        AbsLocConfig {
+            area_prediction: false,
+            early_stop_inliers: None,
+            ..Default::default()
+        },
+    );
+    for k in 0..3 {
+        let out = loc
+            .localize(
+                &frame(&loc, 400.0 + 50.0 * k as f64, 500.0, 0.3),
+                ALT,
+                &Prior::default(),
+            )
+            .unwrap();
+        let fix = out.fix().unwrap();
+        assert!(fix.global);
+        if k > 0 {
+            // Exhaustive: every tile, with the last heading.
+            assert_eq!(fix.searched_tiles, 9);
+        }
+    }
+}
+
+#[test]
+fn a_prior_position_and_heading_select_the_candidates() {
+    let mut loc = localizer(5, 2000, AbsLocConfig::default());
+    assert!(
+        loc.localize(&frame(&loc, 600.0, 600.0, 0.0), ALT, &Prior::default())
+            .unwrap()
+            .fix()
+            .is_some()
+    );
+    // Far from the last fix (beyond its search radius): the prior moves the search there.
+    let (u, v) = (1420.0, 1350.0);
+    let (x, y) = loc.tiles().pixel_to_world(u, v);
+    let prior = Prior {
+        position: Some([x + 0.5, y - 0.3]),
+        heading: Some(-1.2),
+    };
+    let out = loc.localize(&frame(&loc, u, v, -1.2), ALT, &prior).unwrap();
+    let fix = out.fix().unwrap();
+    assert!(!fix.global, "{fix:?}");
+    assert!(fix.searched_tiles <= 4, "{}", fix.searched_tiles);
+    assert!(((fix.position[0] - x).powi(2) + (fix.position[1] - y).powi(2)).sqrt() < 0.15);
+}
+
+#[test]
+fn a_frame_from_elsewhere_fails_with_zero_confidence_and_widens_the_search() {
+    let mut loc = localizer(
+        6,
+        1000,
+        AbsLocConfig {
+            global_fallback: true,
+            ..Default::default()
+        },
+    );
+    let good = loc
+        .localize(&frame(&loc, 500.0, 500.0, 0.0), ALT, &Prior::default())
+        .unwrap();
+    assert!(good.fix().is_some());
+    // A frame of another terrain: no tile may accept it, and nothing stale comes back.
+    let other = frame_from_map(&texture(1000, 1000, 99), (500.0, 500.0), 0.4, 0.0, 500);
+    let out = loc.localize(&other, ALT, &Prior::default()).unwrap();
+    match &out {
+        Outcome::Failed(f) => {
+            assert!(matches!(f.reason, FailureReason::NoMatch { .. }));
+            assert_eq!(f.next_radius, 10);
+            assert!(
+                f.global,
+                "the failed local search falls back to the whole map"
+            );
+        }
+        Outcome::Fix(f) => panic!("accepted a frame from another map: {f:?}"),
+    }
+    assert_eq!(out.confidence(), 0.0);
+    // The next good frame is found again.
+    let back = loc
+        .localize(&frame(&loc, 520.0, 480.0, 0.1), ALT, &Prior::default())
+        .unwrap();
+    assert!(back.fix().is_some());
+}
+
+#[test]
+fn a_wrong_altitude_is_caught_by_the_scale_check() {
+    let mut loc = localizer(7, 1000, AbsLocConfig::default());
+    // The frame is rendered at 10 m; an altimeter saying 20 m doubles the expected scale.
+    let out = loc
+        .localize(
+            &frame(&loc, 500.0, 500.0, 0.0),
+            2.0 * ALT,
+            &Prior::default(),
+        )
+        .unwrap();
+    assert!(out.fix().is_none(), "{out:?}");
+    assert_eq!(out.confidence(), 0.0);
+}

@@ -1,0 +1,168 @@
+//! `jointloc match`: the paper's matcher benchmark (Table V protocol) on simulated pairs (a
+//! frame and its ground-truth tile) or on any pairs file with known homographies.
+
+use std::path::PathBuf;
+
+use anyhow::{Context, bail};
+use jointloc_absloc::ground_truth::{GroundTruthSource, TerrainHeights};
+use jointloc_absloc::match_bench::{
+    BenchConfig, MatchReport, THRESHOLDS_PX, pairs_from_dataset, read_pairs_file, run_bench,
+    threshold_key,
+};
+use jointloc_absloc::registry::{MATCHERS, RegistryOptions, resolve};
+
+#[derive(Debug, clap::Args)]
+pub struct Args {
+    /// Simulated dataset folder (pairs: random frames against their ground-truth tile).
+    #[arg(long, required_unless_present_any = ["pairs_file", "list"], conflicts_with = "pairs_file")]
+    dataset: Option<PathBuf>,
+    /// Pairs file instead: `query reference h00 h01 h02 h10 h11 h12 h20 h21 h22` per line
+    /// (homography query → reference, row-major; paths relative to the file).
+    #[arg(long, value_name = "F")]
+    pairs_file: Option<PathBuf>,
+    /// Matcher(s), comma separated (see --list).
+    #[arg(
+        long,
+        value_name = "M",
+        value_delimiter = ',',
+        default_value = "xfeat-lighterglue"
+    )]
+    matcher: Vec<String>,
+    /// Number of pairs drawn from the dataset.
+    #[arg(long, value_name = "N", default_value_t = 30)]
+    pairs: usize,
+    /// Seed of the pair draw.
+    #[arg(long, value_name = "S", default_value_t = 0)]
+    seed: u64,
+    /// Match frames at native scale and orientation (default: resampled to the map's GSD from
+    /// the altimeter and turned north-up by the true heading, as the localiser does).
+    #[arg(long)]
+    native_scale: bool,
+    /// Ground truth from a flat ground at camera z − altimeter instead of the regenerated
+    /// terrain heightfield.
+    #[arg(long)]
+    flat_ground: bool,
+    /// Keypoints per image (default: each detector's own).
+    #[arg(long, value_name = "N")]
+    max_keypoints: Option<usize>,
+    /// ONNX Runtime threads per network.
+    #[arg(long, value_name = "N", default_value_t = 1)]
+    threads: usize,
+    /// Models directory (default: $JOINTLOC_MODELS or the user cache).
+    #[arg(long, value_name = "DIR")]
+    models_dir: Option<PathBuf>,
+    /// Write the table (and every pair's error) as JSON.
+    #[arg(long, value_name = "OUT")]
+    json: Option<PathBuf>,
+    /// Overwrite --json.
+    #[arg(long)]
+    force: bool,
+    /// List the matchers and exit.
+    #[arg(long)]
+    list: bool,
+}
+
+pub fn run(args: Args) -> anyhow::Result<()> {
+    if args.list {
+        for (name, what) in MATCHERS {
+            println!("{name:20} {what}");
+        }
+        return Ok(());
+    }
+    if let Some(p) = &args.json
+        && p.exists()
+        && !args.force
+    {
+        bail!("{}: already exists (use --force to overwrite)", p.display());
+    }
+    if args.pairs == 0 {
+        bail!("--pairs must be at least 1");
+    }
+    let opts = RegistryOptions {
+        models_dir: args.models_dir.clone(),
+        threads: Some(args.threads),
+        max_keypoints: args.max_keypoints,
+    };
+    // Resolve every matcher first: an unknown or unavailable name fails before any work.
+    let pipelines = args
+        .matcher
+        .iter()
+        .map(|m| resolve(m, &opts))
+        .collect::<Result<Vec<_>, _>>()?;
+    let (pairs, source) = if let Some(file) = &args.pairs_file {
+        (read_pairs_file(file)?, None)
+    } else {
+        let dir = args
+            .dataset
+            .as_ref()
+            .context("--dataset or --pairs-file is required")?;
+        let ds = jointloc_absloc::dataset::UavDataset::open(dir)?;
+        let terrain = if args.flat_ground {
+            None
+        } else {
+            jointloc_absloc::sim_terrain::regenerate(dir, &ds)
+        };
+        let (pairs, source) = pairs_from_dataset(
+            dir,
+            args.pairs,
+            args.seed,
+            terrain.as_ref().map(|t| t as &dyn TerrainHeights),
+            !args.native_scale,
+        )?;
+        (pairs, Some(source))
+    };
+    let cfg = BenchConfig::default();
+    let mut reports: Vec<MatchReport> = Vec::new();
+    for p in &pipelines {
+        reports.push(run_bench(p, &pairs, &cfg)?);
+    }
+    print_table(&reports, source);
+    if let Some(path) = &args.json {
+        let json = serde_json::json!({
+            "pairs": pairs.len(),
+            "seed": args.seed,
+            "dataset": args.dataset,
+            "pairs_file": args.pairs_file,
+            "normalised": args.pairs_file.is_none() && !args.native_scale,
+            "ground_truth": source.map(|s| format!("{s:?}")),
+            "matchers": reports,
+        });
+        std::fs::write(path, serde_json::to_string_pretty(&json)? + "\n")
+            .with_context(|| format!("writing {}", path.display()))?;
+    }
+    Ok(())
+}
+
+fn print_table(reports: &[MatchReport], source: Option<GroundTruthSource>) {
+    let heads: Vec<String> = THRESHOLDS_PX.iter().map(|&t| threshold_key(t)).collect();
+    println!(
+        "| matcher | pairs | {} | failed | ms/pair (mean) | ms/pair (median) |",
+        heads.join(" | ")
+    );
+    println!("|---|---|{}---|---|---|", "---|".repeat(heads.len()));
+    for r in reports {
+        let acc: Vec<String> = heads
+            .iter()
+            .map(|k| format!("{:.2}", r.accuracy[k]))
+            .collect();
+        println!(
+            "| {} | {} | {} | {} | {:.1} | {:.1} |",
+            r.matcher,
+            r.pairs,
+            acc.join(" | "),
+            r.failures,
+            r.ms_mean,
+            r.ms_median
+        );
+    }
+    if let Some(s) = source {
+        println!(
+            "\nground truth: {}",
+            match s {
+                GroundTruthSource::Terrain => "terrain heightfield regenerated from sim.toml",
+                GroundTruthSource::AltimeterPlane =>
+                    "flat ground at camera z - altimeter (approximate)",
+            }
+        );
+    }
+}

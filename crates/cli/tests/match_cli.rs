@@ -1,0 +1,195 @@
+//! `jointloc match` end to end: the table on simulated pairs and on a pairs file, JSON keys,
+//! clear errors for unknown matchers and malformed pairs files.
+
+use std::path::Path;
+use std::process::{Command, Output};
+use std::sync::OnceLock;
+
+fn jointloc(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_jointloc"))
+        .args(args)
+        .output()
+        .expect("running jointloc")
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+/// A 3 m gravel flight at 2 Hz, made once for this test binary.
+fn dataset() -> &'static Path {
+    static DIR: OnceLock<tempfile::TempDir> = OnceLock::new();
+    DIR.get_or_init(|| {
+        let dir = tempfile::tempdir().unwrap();
+        let out = jointloc(&[
+            "sim",
+            "--out",
+            s(dir.path()),
+            "--terrain",
+            "gravel",
+            "--length-m",
+            "3",
+            "--rate",
+            "2",
+            "--seed",
+            "5",
+        ]);
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        dir
+    })
+    .path()
+}
+
+fn failure(out: &Output) -> String {
+    assert!(
+        !out.status.success(),
+        "expected failure: {}",
+        String::from_utf8_lossy(&out.stdout)
+    );
+    let err = String::from_utf8_lossy(&out.stderr).to_string();
+    assert!(!err.contains("panicked"), "{err}");
+    err
+}
+
+#[test]
+fn simulated_pairs_give_the_table_and_json() {
+    let tmp = tempfile::tempdir().unwrap();
+    let json = tmp.path().join("m.json");
+    let out = jointloc(&[
+        "match",
+        "--dataset",
+        s(dataset()),
+        "--matcher",
+        "orb",
+        "--pairs",
+        "5",
+        "--seed",
+        "3",
+        "--json",
+        s(&json),
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let table = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        table.contains("| matcher | pairs | @1px | @5px | @10px | @50px | @100px |"),
+        "{table}"
+    );
+    assert!(table.contains("terrain heightfield"), "{table}");
+    let v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    let m = &v["matchers"][0];
+    assert_eq!(m["matcher"], "orb");
+    assert_eq!(m["pairs"], 5);
+    // Easy simulated pairs: ORB finds every homography within 10 px.
+    assert_eq!(m["accuracy"]["@10px"], 1.0, "{m}");
+    assert!(m["accuracy"]["@1px"].as_f64().unwrap() <= m["accuracy"]["@5px"].as_f64().unwrap());
+    assert_eq!(m["results"].as_array().unwrap().len(), 5);
+    // The same seed draws the same pairs.
+    let again = jointloc(&[
+        "match",
+        "--dataset",
+        s(dataset()),
+        "--matcher",
+        "orb",
+        "--pairs",
+        "5",
+        "--seed",
+        "3",
+        "--json",
+        s(&json),
+        "--force",
+    ]);
+    assert!(again.status.success());
+    let w: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    let labels = |v: &serde_json::Value| -> Vec<String> {
+        v["matchers"][0]["results"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|r| r["label"].to_string())
+            .collect()
+    };
+    assert_eq!(labels(&v), labels(&w));
+    assert!(
+        failure(&jointloc(&[
+            "match",
+            "--dataset",
+            s(dataset()),
+            "--matcher",
+            "orb",
+            "--pairs",
+            "2",
+            "--json",
+            s(&json)
+        ]))
+        .contains("already exists")
+    );
+}
+
+#[test]
+fn pairs_files_work_and_fail_clearly() {
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    // Reference: a tile; query: a 400x400 crop of it shifted by (37, 21): H = translation.
+    let tile = image::open(dataset().join("satellite/0_0_0.png"))
+        .unwrap()
+        .into_luma8();
+    image::imageops::crop_imm(&tile, 37, 21, 400, 400)
+        .to_image()
+        .save(d.join("q.png"))
+        .unwrap();
+    tile.save(d.join("r.png")).unwrap();
+    std::fs::write(
+        d.join("pairs.txt"),
+        "# query reference H\nq.png r.png 1 0 37 0 1 21 0 0 1\n",
+    )
+    .unwrap();
+    let out = jointloc(&[
+        "match",
+        "--pairs-file",
+        s(&d.join("pairs.txt")),
+        "--matcher",
+        "orb",
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let table = String::from_utf8_lossy(&out.stdout);
+    let row = table.lines().find(|l| l.starts_with("| orb |")).unwrap();
+    assert!(row.starts_with("| orb | 1 | 1.00 | 1.00 |"), "{row}");
+    // Malformed lines name the file and line.
+    std::fs::write(d.join("bad.txt"), "q.png r.png 1 0 37 0 1 21 0 0\n").unwrap();
+    let err = failure(&jointloc(&[
+        "match",
+        "--pairs-file",
+        s(&d.join("bad.txt")),
+        "--matcher",
+        "orb",
+    ]));
+    assert!(err.contains("bad.txt:1"), "{err}");
+    // Unknown matcher, listed ones shown.
+    let err = failure(&jointloc(&[
+        "match",
+        "--pairs-file",
+        s(&d.join("pairs.txt")),
+        "--matcher",
+        "orb,loftr",
+    ]));
+    assert!(
+        err.contains("loftr") && err.contains("aliked-lightglue"),
+        "{err}"
+    );
+    let list = jointloc(&["match", "--list"]);
+    assert!(String::from_utf8_lossy(&list.stdout).contains("disk-lightglue"));
+}
