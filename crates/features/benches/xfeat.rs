@@ -1,15 +1,22 @@
 //! XFeat on the 500×500 golden image, 1 thread: whole `detect`, the network alone, the Rust
-//! post-processing alone, and MNN matching of two 1024-keypoint sets. Throughput of the
-//! network benches is in FLOPs ("elem/s" = FLOP/s); compare with `benches/gemm.rs`.
+//! pre- and post-processing alone, and MNN matching of two 1024-keypoint sets. Network
+//! throughput is in FLOPs ("elem/s" = FLOP/s); compare with `benches/gemm.rs`.
+//!
+//! Every case runs twice: wall-clock time (`xfeat/…`) and the benchmark thread's CPU time
+//! (`xfeat_cpu/…`, see `cpu_time`).
 
 use std::path::PathBuf;
 use std::time::Duration;
 
+use criterion::measurement::{Measurement, WallTime};
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use jointloc_features::mnn::MnnMatcher;
 use jointloc_features::models::ready_store;
 use jointloc_features::xfeat::{SparseParams, XFeat, XFeatConfig, preprocess, sparse};
 use jointloc_features::{Detector, Matcher};
+
+mod cpu_time;
+use cpu_time::ThreadCpuTime;
 
 fn image(tag: &str) -> image::GrayImage {
     let path =
@@ -17,7 +24,7 @@ fn image(tag: &str) -> image::GrayImage {
     image::open(path).expect("golden image").to_luma8()
 }
 
-fn xfeat(c: &mut Criterion) {
+fn cases<M: Measurement>(c: &mut Criterion<M>, name: &str) {
     let store = ready_store().expect("models (run `jointloc models fetch`)");
     let net = XFeat::from_store(&store, XFeatConfig::default()).expect("XFeat");
     let (img, img_b) = (image("a"), image("b"));
@@ -27,9 +34,9 @@ fn xfeat(c: &mut Criterion) {
         flops as f64 / 1e9
     );
 
-    let mut group = c.benchmark_group("xfeat");
-    group.sample_size(30);
-    group.measurement_time(Duration::from_secs(15));
+    let mut group = c.benchmark_group(name);
+    group.sample_size(20);
+    group.measurement_time(Duration::from_secs(12));
     group.throughput(Throughput::Elements(flops));
     group.bench_function("500x500 detect", |b| {
         b.iter(|| net.detect(&img).expect("detect"))
@@ -65,5 +72,18 @@ fn xfeat(c: &mut Criterion) {
     group.finish();
 }
 
-criterion_group!(benches, xfeat);
-criterion_main!(benches);
+fn wall(c: &mut Criterion<WallTime>) {
+    cases(c, "xfeat");
+}
+
+fn cpu(c: &mut Criterion<ThreadCpuTime>) {
+    cases(c, "xfeat_cpu");
+}
+
+criterion_group!(wall_time, wall);
+criterion_group! {
+    name = cpu_time;
+    config = Criterion::default().with_measurement(ThreadCpuTime);
+    targets = cpu
+}
+criterion_main!(wall_time, cpu_time);

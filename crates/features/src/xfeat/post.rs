@@ -131,6 +131,7 @@ pub fn keypoint_heatmap(logits: &[f32], cols: usize, rows: usize) -> Vec<f32> {
             }
         }
     }
+    let inv: Vec<f32> = sum.iter().map(|s| 1.0 / s).collect();
     let mut heat = vec![0.0f32; cells * 64];
     for (c, plane) in prob.chunks_exact(cells).enumerate() {
         let (ky, kx) = (c / 8, c % 8);
@@ -138,7 +139,7 @@ pub fn keypoint_heatmap(logits: &[f32], cols: usize, rows: usize) -> Vec<f32> {
             let row = &mut heat[(cy * 8 + ky) * width..(cy * 8 + ky + 1) * width];
             for cx in 0..cols {
                 let i = cy * cols + cx;
-                row[cx * 8 + kx] = plane[i] / sum[i];
+                row[cx * 8 + kx] = plane[i] * inv[i];
             }
         }
     }
@@ -176,25 +177,31 @@ pub fn nms(
     size: usize,
 ) -> Vec<(usize, usize)> {
     let r = size / 2;
+    // Separable: maxima over each pixel's horizontal run first (whole rows, vectorisable), then
+    // only candidates look at the runs of the rows around them.
+    let mut hmax = heat.to_vec();
+    for (out, row) in hmax.chunks_exact_mut(width).zip(heat.chunks_exact(width)) {
+        for d in 1..=r.min(width.saturating_sub(1)) {
+            for (o, &v) in out[..width - d].iter_mut().zip(&row[d..]) {
+                *o = o.max(v);
+            }
+            for (o, &v) in out[d..].iter_mut().zip(&row[..width - d]) {
+                *o = o.max(v);
+            }
+        }
+    }
     let mut out = Vec::new();
     for y in 0..height {
         let row = &heat[y * width..(y + 1) * width];
+        let rows = y.saturating_sub(r)..(y + r + 1).min(height);
         for (c, chunk) in row.chunks(8).enumerate() {
             // Most 8-pixel runs hold nothing above the threshold: one max skips them.
             if chunk.iter().fold(f32::NEG_INFINITY, |m, &v| m.max(v)) <= threshold {
                 continue;
             }
             for (dx, &v) in chunk.iter().enumerate() {
-                if v <= threshold {
-                    continue;
-                }
                 let x = c * 8 + dx;
-                let is_max = (y.saturating_sub(r)..(y + r + 1).min(height)).all(|yy| {
-                    heat[yy * width + x.saturating_sub(r)..yy * width + (x + r + 1).min(width)]
-                        .iter()
-                        .all(|&n| n <= v)
-                });
-                if is_max {
+                if v > threshold && rows.clone().all(|yy| hmax[yy * width + x] <= v) {
                     out.push((x, y));
                 }
             }
