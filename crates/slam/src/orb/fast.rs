@@ -91,24 +91,24 @@ pub fn score_map(img: &[u8], w: usize, h: usize, border: usize, t: u8) -> Vec<u8
     for y in border..h - border {
         let row = y * w;
         let start = row + border;
-        // Branch-free corner test over the whole row (vectorised): masks of the circle pixels
-        // brighter / darker than the centre by more than t, then a search for 9 in a row.
+        // Branch-free pre-test over the whole row (vectorised): an arc of 9 contains two
+        // consecutive compass points (0, 4, 8, 12), both brighter or both darker.
         {
             let centre = &img[start..start + n];
-            let circle: [&[u8]; 16] = std::array::from_fn(|k| {
+            let ring = |k: usize| {
                 let o = (start as isize + offs[k]) as usize;
                 &img[o..o + n]
-            });
-            for (x, f) in flags.iter_mut().enumerate() {
+            };
+            let (r0, r4, r8, r12) = (ring(0), ring(4), ring(8), ring(12));
+            for x in 0..n {
                 let c = centre[x];
                 let (hi, lo) = (c.saturating_add(t8), c.saturating_sub(t8));
-                let (mut mb, mut md) = (0u32, 0u32);
-                for (k, e) in circle.iter().enumerate() {
-                    let p = e[x];
-                    mb |= ((p > hi) as u32) << k;
-                    md |= ((p < lo) as u32) << k;
-                }
-                *f = (has_arc(mb) | has_arc(md)) as u8;
+                let (p0, p4, p8, p12) = (r0[x], r4[x], r8[x], r12[x]);
+                let (b0, b4, b8, b12) = (p0 > hi, p4 > hi, p8 > hi, p12 > hi);
+                let (d0, d4, d8, d12) = (p0 < lo, p4 < lo, p8 < lo, p12 < lo);
+                let bright = (b0 & b4) | (b4 & b8) | (b8 & b12) | (b12 & b0);
+                let dark = (d0 & d4) | (d4 & d8) | (d8 & d12) | (d12 & d0);
+                flags[x] = (bright | dark) as u8;
             }
         }
         for (xo, &f) in flags.iter().enumerate() {
@@ -119,7 +119,15 @@ pub fn score_map(img: &[u8], w: usize, h: usize, border: usize, t: u8) -> Vec<u8
             let c = img[i] as i16;
             let d: [i16; 16] =
                 std::array::from_fn(|k| img[(i as isize + offs[k]) as usize] as i16 - c);
-            scores[i] = score_of(&d).max(1);
+            let t = t8 as i16;
+            let (mut mb, mut md) = (0u32, 0u32);
+            for (k, &v) in d.iter().enumerate() {
+                mb |= ((v > t) as u32) << k;
+                md |= ((v < -t) as u32) << k;
+            }
+            if has_arc(mb) || has_arc(md) {
+                scores[i] = score_of(&d).max(1);
+            }
         }
     }
     scores
