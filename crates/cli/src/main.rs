@@ -3,6 +3,7 @@
 //! One subcommand per file; each exposes `Args` (clap) and `run`.
 
 mod absloc;
+mod bench;
 mod eval;
 mod matching;
 mod models;
@@ -26,6 +27,8 @@ struct Cli {
 enum Command {
     /// Absolute localisation only: per-frame fixes against the satellite map, with confidence.
     Absloc(absloc::Args),
+    /// The paper's tables and figures on simulated datasets, in one command (report.md + JSON + SVG).
+    Bench(bench::Args),
     /// APE/RPE of a trajectory against ground truth (same numbers as evo_ape / evo_rpe).
     Eval(eval::Args),
     /// Matcher benchmark on image pairs with a known homography (@N px, ms per pair).
@@ -48,6 +51,7 @@ fn main() -> std::process::ExitCode {
         .init();
     let result = match cli.command {
         Command::Absloc(args) => absloc::run(args),
+        Command::Bench(args) => bench::run(args),
         Command::Eval(args) => eval::run(args),
         Command::Match(args) => matching::run(args),
         Command::Models(args) => models::run(args),

@@ -1,0 +1,102 @@
+//! Runs `jointloc` subcommands as child processes of the current executable, one log file per
+//! run, and records the exact command line so the report can show how to reproduce each row.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::time::Instant;
+
+use anyhow::{Context, bail};
+
+/// One finished child run.
+#[derive(Debug, Clone)]
+pub struct Finished {
+    /// The command as a user would type it (`jointloc …`).
+    pub command: String,
+    /// Wall time of the whole process, seconds.
+    pub wall_s: f64,
+    /// Exit status; `Err` holds the last lines of the log.
+    pub outcome: Result<(), String>,
+}
+
+/// Runs subcommands of the current executable.
+#[derive(Debug)]
+pub struct Runner {
+    exe: PathBuf,
+    logs: PathBuf,
+    counter: usize,
+}
+
+impl Runner {
+    pub fn new(logs: &Path) -> anyhow::Result<Self> {
+        let exe = std::env::current_exe().context("locating the jointloc executable")?;
+        std::fs::create_dir_all(logs).with_context(|| format!("creating {}", logs.display()))?;
+        Ok(Self {
+            exe,
+            logs: logs.to_path_buf(),
+            counter: 0,
+        })
+    }
+
+    /// Runs `jointloc <args>`; a non-zero exit is returned as a failed [`Finished`], not an
+    /// error, so one failed row does not end the benchmark (the paper's "-" entries).
+    pub fn run(&mut self, label: &str, args: &[String]) -> anyhow::Result<Finished> {
+        self.counter += 1;
+        let log = self.logs.join(format!("{:03}-{label}.log", self.counter));
+        let command = format!(
+            "jointloc {}",
+            args.iter().map(|a| quote(a)).collect::<Vec<_>>().join(" ")
+        );
+        tracing::info!("{command}");
+        let start = Instant::now();
+        let output = Command::new(&self.exe)
+            .args(args)
+            .env("RUST_LOG", "warn")
+            .output()
+            .with_context(|| format!("starting {command}"))?;
+        let wall_s = start.elapsed().as_secs_f64();
+        let stdout = String::from_utf8_lossy(&output.stdout).into_owned();
+        let stderr = String::from_utf8_lossy(&output.stderr).into_owned();
+        std::fs::write(
+            &log,
+            format!("$ {command}\n{stdout}\n--- stderr ---\n{stderr}"),
+        )
+        .with_context(|| format!("writing {}", log.display()))?;
+        let outcome = if output.status.success() {
+            Ok(())
+        } else {
+            let tail: Vec<&str> = stderr.lines().rev().take(3).collect();
+            let reason = tail.into_iter().rev().collect::<Vec<_>>().join(" / ");
+            Err(if reason.is_empty() {
+                format!("exit status {}", output.status)
+            } else {
+                reason
+            })
+        };
+        Ok(Finished {
+            command,
+            wall_s,
+            outcome,
+        })
+    }
+
+    /// Like [`Runner::run`] but a failure is an error (for steps everything else needs).
+    pub fn run_required(&mut self, label: &str, args: &[String]) -> anyhow::Result<Finished> {
+        let done = self.run(label, args)?;
+        if let Err(reason) = &done.outcome {
+            bail!("`{}` failed: {reason}", done.command);
+        }
+        Ok(done)
+    }
+}
+
+/// Shell-quotes an argument when it needs it.
+fn quote(a: &str) -> String {
+    if !a.is_empty()
+        && a.chars()
+            .all(|c| c.is_ascii_alphanumeric() || "-_./:=,+".contains(c))
+    {
+        a.to_string()
+    } else {
+        format!("'{}'", a.replace('\'', "'\\''"))
+    }
+}

@@ -1,0 +1,98 @@
+//! `jointloc bench` end to end on one tiny dataset (ORB everywhere: no model files needed):
+//! the report, its JSON and figures are written; an existing report is not replaced without
+//! `--force`; bad options are clear errors.
+
+use std::process::{Command, Output};
+
+fn jointloc(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_jointloc"))
+        .args(args)
+        .output()
+        .expect("running jointloc")
+}
+
+#[test]
+fn writes_the_report_and_refuses_to_replace_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("bench");
+    let out_s = out.to_str().unwrap();
+    let args = [
+        "bench",
+        "--out",
+        out_s,
+        "--quick",
+        "--terrains",
+        "crater",
+        "--length-m",
+        "20",
+        "--matchers",
+        "orb",
+        "--matcher",
+        "orb",
+        "--pairs",
+        "2",
+        "--tables",
+        "matching,localisation",
+    ];
+    let run = jointloc(&args);
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    let md = std::fs::read_to_string(out.join("report.md")).unwrap();
+    for needle in [
+        "## 1. Matching (paper Table V)",
+        "| crater | easy | orb |",
+        "## 2. Visual localisation (paper Table VI)",
+        "| crater | easy | JointLoc (orb) |",
+        "| crater | easy | VO only (Sim(3)-aligned) | 1 |",
+        "| crater | easy | Absolute only (orb, every 5, 2-D) | 1 |",
+        "jointloc vo --dataset",
+        "2 cores",
+    ] {
+        assert!(md.contains(needle), "missing {needle:?} in\n{md}");
+    }
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
+    let vo = json["localisation"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|r| r["method"].as_str().unwrap().starts_with("VO"))
+        .unwrap();
+    let rmse = vo["stats"]["rmse"].as_f64().unwrap();
+    assert!(rmse > 0.0 && rmse < 1.0, "VO rmse {rmse}");
+    for f in [
+        "crater-easy-s201-trajectories.svg",
+        "crater-easy-s201-trajectories.map.png",
+        "crater-easy-s201-error.svg",
+    ] {
+        assert!(out.join("figures").join(f).exists(), "{f}");
+    }
+    assert!(std::fs::read_dir(out.join("logs")).unwrap().count() >= 4);
+
+    // The report exists: not replaced without --force.
+    let again = jointloc(&args);
+    assert!(!again.status.success());
+    assert!(String::from_utf8_lossy(&again.stderr).contains("--force"));
+}
+
+#[test]
+fn bad_options_are_clear_errors() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().to_str().unwrap();
+    for (args, needle) in [
+        (vec!["--terrains", "moon"], "unknown terrain"),
+        (vec!["--tables", "everything"], "unknown table"),
+        (vec!["--seeds", "0"], "--seeds"),
+        (vec!["--length-m", "5"], "--length-m"),
+    ] {
+        let mut a = vec!["bench", "--out", out];
+        a.extend(args);
+        let run = jointloc(&a);
+        assert!(!run.status.success());
+        let err = String::from_utf8_lossy(&run.stderr);
+        assert!(err.contains(needle), "{needle}: {err}");
+    }
+}
