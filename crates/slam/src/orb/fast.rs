@@ -84,13 +84,38 @@ pub fn score_map(img: &[u8], w: usize, h: usize, border: usize, t: u8) -> Vec<u8
     if w <= 2 * border || h <= 2 * border {
         return scores;
     }
+    let rect = Rect {
+        x0: border,
+        x1: w - border,
+        y0: border,
+        y1: h - border,
+    };
+    score_rect(img, w, rect, t, &mut scores);
+    scores
+}
+
+/// A pixel rectangle, end-exclusive.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+struct Rect {
+    x0: usize,
+    x1: usize,
+    y0: usize,
+    y1: usize,
+}
+
+/// Writes the FAST-9 scores at threshold `t` of the centres in `r` (at least 3 px inside the
+/// image) into `scores` (0 at non-corners); pixels outside `r` are left alone.
+fn score_rect(img: &[u8], w: usize, r: Rect, t: u8, scores: &mut [u8]) {
+    if r.x1 <= r.x0 || r.y1 <= r.y0 {
+        return;
+    }
     let offs: [isize; 16] = std::array::from_fn(|k| CIRCLE[k].1 * w as isize + CIRCLE[k].0);
-    let n = w - 2 * border;
+    let n = r.x1 - r.x0;
     let mut flags = vec![0u8; n];
     let t8 = t;
-    for y in border..h - border {
-        let row = y * w;
-        let start = row + border;
+    for y in r.y0..r.y1 {
+        let start = y * w + r.x0;
+        scores[start..start + n].fill(0);
         // Branch-free pre-test over the whole row (vectorised): an arc of 9 contains two
         // consecutive compass points (0, 4, 8, 12), both brighter or both darker.
         {
@@ -130,7 +155,6 @@ pub fn score_map(img: &[u8], w: usize, h: usize, border: usize, t: u8) -> Vec<u8
             }
         }
     }
-    scores
 }
 
 /// Non-maximum suppression in 3×3: keeps a non-zero score that is strictly greater than its
@@ -150,6 +174,11 @@ fn is_local_max(scores: &[u8], w: usize, x: usize, y: usize) -> bool {
 /// Corners of one level detected per cell: cells of about `cell_size` px tile the region
 /// `[border, w - border)` × `[border, h - border)`; a cell keeps its local maxima scoring
 /// above `ini_th`, or, if it has none, those above `min_th`.
+///
+/// Scores are computed at `ini_th` over the whole region, and at `min_th` only in (and one
+/// pixel around) the cells that need the fallback: most pixels of a textured image pass the
+/// low threshold's pre-test, few pass the high one's. The result equals one pass at `min_th`
+/// (a score above `ini_th` beats any neighbour at or below it under either map).
 pub fn detect_in_cells(
     img: &[u8],
     w: usize,
@@ -162,43 +191,60 @@ pub fn detect_in_cells(
     if w <= 2 * border + 2 || h <= 2 * border + 2 {
         return Vec::new();
     }
-    let scores = score_map(img, w, h, border, min_th);
+    let scores = score_map(img, w, h, border, ini_th);
+    let mut fallback: Vec<u8> = Vec::new();
     let (rw, rh) = (w - 2 * border, h - 2 * border);
     let n_cols = (rw / cell_size).max(1);
     let n_rows = (rh / cell_size).max(1);
     let cw = rw.div_ceil(n_cols);
     let ch = rh.div_ceil(n_rows);
     let mut out = Vec::new();
-    let mut cell = Vec::new();
     for r in 0..n_rows {
         let y0 = border + r * ch;
         let y1 = (y0 + ch).min(h - border);
         for c in 0..n_cols {
             let x0 = border + c * cw;
             let x1 = (x0 + cw).min(w - border);
-            cell.clear();
-            let mut any_ini = false;
-            for y in y0..y1 {
-                for x in x0..x1 {
-                    if is_local_max(&scores, w, x, y) {
-                        let score = scores[y * w + x];
-                        any_ini |= score > ini_th;
-                        cell.push(Corner {
-                            x: x as u32,
-                            y: y as u32,
-                            score,
-                        });
-                    }
-                }
+            let before = out.len();
+            collect_maxima(&scores, w, x0..x1, y0..y1, &mut out);
+            if out.len() > before || ini_th == min_th {
+                continue;
             }
-            if any_ini {
-                out.extend(cell.iter().filter(|k| k.score > ini_th));
-            } else {
-                out.extend_from_slice(&cell);
+            if fallback.is_empty() {
+                fallback = vec![0u8; w * h];
             }
+            let rect = Rect {
+                x0: x0.saturating_sub(1).max(border),
+                x1: (x1 + 1).min(w - border),
+                y0: y0.saturating_sub(1).max(border),
+                y1: (y1 + 1).min(h - border),
+            };
+            score_rect(img, w, rect, min_th, &mut fallback);
+            collect_maxima(&fallback, w, x0..x1, y0..y1, &mut out);
         }
     }
     out
+}
+
+/// Appends the local maxima of `scores` in the given pixel ranges.
+fn collect_maxima(
+    scores: &[u8],
+    w: usize,
+    xs: std::ops::Range<usize>,
+    ys: std::ops::Range<usize>,
+    out: &mut Vec<Corner>,
+) {
+    for y in ys {
+        for x in xs.clone() {
+            if is_local_max(scores, w, x, y) {
+                out.push(Corner {
+                    x: x as u32,
+                    y: y as u32,
+                    score: scores[y * w + x],
+                });
+            }
+        }
+    }
 }
 
 #[cfg(test)]
@@ -302,6 +348,68 @@ mod tests {
         // Without the fallback (min = ini), the faint one is lost.
         let strict = detect_in_cells(&img, w, h, 4, 36, 20, 20);
         assert_eq!(strict.iter().filter(|c| c.x >= 40).count(), 0);
+    }
+
+    /// One score pass at `min_th` and the per-cell choice on it (the definition).
+    fn detect_in_cells_reference(
+        img: &[u8],
+        w: usize,
+        h: usize,
+        border: usize,
+        cell_size: usize,
+        ini_th: u8,
+        min_th: u8,
+    ) -> Vec<Corner> {
+        let scores = score_map(img, w, h, border, min_th);
+        let (rw, rh) = (w - 2 * border, h - 2 * border);
+        let (n_cols, n_rows) = ((rw / cell_size).max(1), (rh / cell_size).max(1));
+        let (cw, ch) = (rw.div_ceil(n_cols), rh.div_ceil(n_rows));
+        let mut out = Vec::new();
+        for r in 0..n_rows {
+            let y0 = border + r * ch;
+            let y1 = (y0 + ch).min(h - border);
+            for c in 0..n_cols {
+                let x0 = border + c * cw;
+                let x1 = (x0 + cw).min(w - border);
+                let mut cell = Vec::new();
+                collect_maxima(&scores, w, x0..x1, y0..y1, &mut cell);
+                if cell.iter().any(|k| k.score > ini_th) {
+                    cell.retain(|k| k.score > ini_th);
+                }
+                out.extend(cell);
+            }
+        }
+        out
+    }
+
+    #[test]
+    fn two_threshold_detection_equals_one_pass_at_the_minimum() {
+        // Smooth blobs plus noise of varying amplitude: some cells have strong corners, some
+        // only weak ones, some none.
+        for seed in [1u64, 2, 3, 4] {
+            let (w, h) = (157, 131);
+            let mut s = seed.wrapping_mul(0x9E3779B97F4A7C15) | 1;
+            let mut rnd = || {
+                s = s
+                    .wrapping_mul(6364136223846793005)
+                    .wrapping_add(1442695040888963407);
+                (s >> 33) as u32
+            };
+            let img: Vec<u8> = (0..w * h)
+                .map(|i| {
+                    let (x, y) = ((i % w) as f64, (i / w) as f64);
+                    let amp = 4.0 + 60.0 * (x / w as f64) * (y / h as f64);
+                    let base = 120.0 + 40.0 * (x * 0.11).sin() * (y * 0.07).cos();
+                    (base + amp * ((rnd() % 1000) as f64 / 1000.0 - 0.5)).clamp(0.0, 255.0) as u8
+                })
+                .collect();
+            for &(border, cell, ini, min) in &[(3, 30, 20, 7), (16, 25, 20, 7), (5, 17, 12, 12)] {
+                let got = detect_in_cells(&img, w, h, border, cell, ini, min);
+                let want = detect_in_cells_reference(&img, w, h, border, cell, ini, min);
+                assert_eq!(got, want, "seed {seed} border {border} cell {cell}");
+                assert!(!got.is_empty());
+            }
+        }
     }
 
     #[test]
