@@ -7,6 +7,7 @@ mod bench;
 mod eval;
 mod matching;
 mod models;
+mod run;
 mod sim;
 mod vo;
 
@@ -35,6 +36,8 @@ enum Command {
     Match(matching::Args),
     /// Install (`fetch`) or show (`list`) the pretrained weights and the ONNX Runtime library.
     Models(models::Args),
+    /// JointLoc: SLAM fused with absolute fixes; world-frame trajectory, fixes, timing, APE.
+    Run(run::Args),
     /// Generate a simulated Mars dataset: terrain, satellite map + tiles, UAV images, ground truth.
     Sim(sim::Args),
     /// Relative localisation only (monocular ORB SLAM): SLAM-frame TUM trajectory, map points,
@@ -55,6 +58,7 @@ fn main() -> std::process::ExitCode {
         Command::Eval(args) => eval::run(args),
         Command::Match(args) => matching::run(args),
         Command::Models(args) => models::run(args),
+        Command::Run(args) => run::run(args),
         Command::Sim(args) => sim::run(args),
         Command::Vo(args) => vo::run(args),
     };

@@ -1,0 +1,200 @@
+//! The SLAM→world similarity from (SLAM position, absolute fix) pairs (paper §III-A, the
+//! (R, t) alignment): RANSAC over minimal sets, then a weighted Umeyama fit on the inliers with
+//! the fixes' confidences as weights. Wrong fixes (tens of metres off) become outliers.
+
+use jointloc_geometry::Sim3;
+use jointloc_geometry::umeyama::align;
+use nalgebra::Point3;
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+
+/// One correspondence: a point in the SLAM frame and where it is in the world frame.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Correspondence {
+    pub slam: Point3<f64>,
+    pub world: Point3<f64>,
+    /// Confidence-derived weight (> 0).
+    pub weight: f64,
+    /// Index of the fix it comes from (a fix gives several correspondences).
+    pub fix: usize,
+}
+
+/// The fitted similarity and which fixes support it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SlamToWorld {
+    pub sim3: Sim3,
+    /// Fixes whose correspondences are all inliers, sorted.
+    pub inlier_fixes: Vec<usize>,
+    /// Weighted RMS residual of the inliers, metres.
+    pub rms: f64,
+}
+
+/// RANSAC (seeded) over minimal sets of 3 correspondences from distinct fixes, scored by the
+/// summed weight of inliers within `threshold`, refined by weighted Umeyama on the inliers.
+/// `None` when no hypothesis has at least `min_fixes` inlier fixes.
+pub fn fit(
+    pairs: &[Correspondence],
+    threshold: f64,
+    iterations: usize,
+    min_fixes: usize,
+    seed: u64,
+) -> Option<SlamToWorld> {
+    let n_fixes = pairs.iter().map(|c| c.fix + 1).max().unwrap_or(0);
+    if pairs.len() < 3 || n_fixes < 2 {
+        return None;
+    }
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let inliers_of = |s: &Sim3| -> Vec<bool> {
+        // A fix is an inlier when all its correspondences are.
+        let mut ok = vec![true; n_fixes];
+        for c in pairs {
+            if (s.transform_point(&c.slam) - c.world).norm() > threshold {
+                ok[c.fix] = false;
+            }
+        }
+        ok
+    };
+    let score = |ok: &[bool]| -> f64 { pairs.iter().filter(|c| ok[c.fix]).map(|c| c.weight).sum() };
+    let mut best: Option<(f64, Vec<bool>)> = None;
+    // Always try the all-pairs fit first: with few pairs it is the natural hypothesis.
+    let mut hypotheses: Vec<Sim3> = Vec::new();
+    if let Some(s) = weighted_fit(pairs, None) {
+        hypotheses.push(s);
+    }
+    for _ in 0..iterations {
+        let idx = rand::seq::index::sample(&mut rng, pairs.len(), 3.min(pairs.len())).into_vec();
+        let sample: Vec<Correspondence> = idx.iter().map(|&i| pairs[i]).collect();
+        if let Some(s) = weighted_fit(&sample, None) {
+            hypotheses.push(s);
+        }
+    }
+    for s in &hypotheses {
+        let ok = inliers_of(s);
+        let sc = score(&ok);
+        if best.as_ref().is_none_or(|(b, _)| sc > *b) {
+            best = Some((sc, ok));
+        }
+    }
+    let (_, mut ok) = best?;
+    // Refine on the inliers, then re-select once with the refined model.
+    let mut sim3 = weighted_fit(pairs, Some(&ok))?;
+    for _ in 0..2 {
+        ok = inliers_of(&sim3);
+        sim3 = weighted_fit(pairs, Some(&ok))?;
+    }
+    let inlier_fixes: Vec<usize> = (0..n_fixes)
+        .filter(|&f| ok[f] && pairs.iter().any(|c| c.fix == f))
+        .collect();
+    if inlier_fixes.len() < min_fixes {
+        return None;
+    }
+    let (mut num, mut den) = (0.0, 0.0);
+    for c in pairs.iter().filter(|c| ok[c.fix]) {
+        num += c.weight * (sim3.transform_point(&c.slam) - c.world).norm_squared();
+        den += c.weight;
+    }
+    Some(SlamToWorld {
+        sim3,
+        inlier_fixes,
+        rms: (num / den.max(1e-12)).sqrt(),
+    })
+}
+
+fn weighted_fit(pairs: &[Correspondence], keep: Option<&[bool]>) -> Option<Sim3> {
+    let chosen: Vec<&Correspondence> = pairs
+        .iter()
+        .filter(|c| keep.is_none_or(|k| k[c.fix]))
+        .collect();
+    if chosen.len() < 3 {
+        return None;
+    }
+    let src: Vec<Point3<f64>> = chosen.iter().map(|c| c.slam).collect();
+    let dst: Vec<Point3<f64>> = chosen.iter().map(|c| c.world).collect();
+    let w: Vec<f64> = chosen.iter().map(|c| c.weight).collect();
+    let a = align(&src, &dst, Some(&w), true).ok()?;
+    (a.sim3.scale.is_finite() && a.sim3.scale > 0.0).then_some(a.sim3)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::{UnitQuaternion, Vector3};
+    use rand::Rng;
+
+    fn truth() -> Sim3 {
+        Sim3 {
+            scale: 1.3,
+            rotation: UnitQuaternion::from_euler_angles(0.1, -0.05, 1.2),
+            translation: Vector3::new(40.0, -25.0, 10.0),
+        }
+    }
+
+    /// Fixes along a gently curving track, each with a point below it; some fixes wrong by
+    /// 10–50 m.
+    fn pairs(seed: u64, outlier_fraction: f64, noise: f64) -> (Vec<Correspondence>, Vec<bool>) {
+        let s = truth();
+        let inv = s.inverse();
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        let mut out = Vec::new();
+        let mut wrong = Vec::new();
+        for f in 0..30 {
+            let t = f as f64 * 2.0;
+            let world = Point3::new(t, 0.02 * t * t, 10.0);
+            let bad = rng.random_bool(outlier_fraction);
+            wrong.push(bad);
+            let shift = if bad {
+                let r = rng.random_range(10.0..50.0);
+                let a: f64 = rng.random_range(0.0..std::f64::consts::TAU);
+                Vector3::new(r * a.cos(), r * a.sin(), 0.0)
+            } else {
+                Vector3::new(
+                    rng.random_range(-noise..noise),
+                    rng.random_range(-noise..noise),
+                    0.0,
+                )
+            };
+            for (p, w) in [(world, 0.6), (world - Vector3::new(0.0, 0.0, 10.0), 0.2)] {
+                out.push(Correspondence {
+                    slam: inv.transform_point(&p),
+                    world: p + shift,
+                    weight: w,
+                    fix: f,
+                });
+            }
+        }
+        (out, wrong)
+    }
+
+    #[test]
+    fn recovers_the_similarity_despite_wrong_fixes() {
+        for seed in 0..5 {
+            let (p, wrong) = pairs(seed, 0.2, 0.3);
+            let fit = fit(&p, 2.0, 200, 2, seed).expect("fit");
+            let t = truth();
+            assert!(
+                (fit.sim3.scale / t.scale - 1.0).abs() < 0.01,
+                "seed {seed}: scale {}",
+                fit.sim3.scale
+            );
+            assert!(
+                fit.sim3.rotation.angle_to(&t.rotation) < 0.01,
+                "seed {seed}"
+            );
+            for (f, &bad) in wrong.iter().enumerate() {
+                assert_eq!(fit.inlier_fixes.contains(&f), !bad, "seed {seed} fix {f}");
+            }
+            let probe = Point3::new(1.0, 2.0, 3.0);
+            let e = (fit.sim3.transform_point(&probe) - t.transform_point(&probe)).norm();
+            assert!(e < 0.3, "seed {seed}: {e}");
+        }
+    }
+
+    #[test]
+    fn too_few_fixes_give_nothing() {
+        let (p, _) = pairs(1, 0.0, 0.0);
+        assert!(fit(&p[..2], 1.0, 50, 2, 0).is_none());
+        assert!(fit(&p[..4], 1.0, 50, 3, 0).is_none());
+        assert!(fit(&p[..4], 1.0, 50, 2, 0).is_some());
+        assert!(fit(&[], 1.0, 50, 2, 0).is_none());
+    }
+}

@@ -1,0 +1,87 @@
+//! Settings of the fused system.
+
+use jointloc_absloc::AbsLocConfig;
+use jointloc_slam::system::SystemConfig;
+use serde::{Deserialize, Serialize};
+
+use crate::error::{JointLocError, Result};
+
+/// JointLoc settings; the SLAM and absolute-localisation settings are nested.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct JointLocConfig {
+    /// Every k-th frame goes to absolute localisation (the paper's fusion frequency, 10).
+    pub fusion_every: usize,
+    /// Fixes with a lower confidence are not used (a failed search has w = 0).
+    pub min_confidence: f64,
+    /// SLAM→world alignment: fixes needed before poses are geo-referenced.
+    pub min_fixes: usize,
+    /// Alignment RANSAC inlier threshold, metres (world frame).
+    pub inlier_threshold_m: f64,
+    /// Alignment RANSAC hypotheses.
+    pub ransac_iterations: usize,
+    /// Weight, relative to the fix's, of the nadir prior that pairs the point under each fix's
+    /// camera (along its optical axis, at the altimeter range) with the map point: it fixes the
+    /// roll about a straight track, which positions alone leave free.
+    pub nadir_weight: f64,
+    /// Seed of the alignment RANSAC.
+    pub seed: u64,
+    pub slam: SystemConfig,
+    pub absloc: AbsLocConfig,
+}
+
+impl Default for JointLocConfig {
+    fn default() -> Self {
+        Self {
+            fusion_every: 10,
+            min_confidence: 0.05,
+            min_fixes: 2,
+            inlier_threshold_m: 2.0,
+            ransac_iterations: 200,
+            nadir_weight: 0.3,
+            seed: 0,
+            slam: SystemConfig::default(),
+            absloc: AbsLocConfig::default(),
+        }
+    }
+}
+
+impl JointLocConfig {
+    pub fn validate(&self) -> Result<()> {
+        let bad = |field, value: String, reason| {
+            Err(JointLocError::InvalidConfig {
+                field,
+                value,
+                reason,
+            })
+        };
+        if self.fusion_every == 0 {
+            return bad("fusion_every", "0".into(), "at least 1");
+        }
+        if !(0.0..=1.0).contains(&self.min_confidence) {
+            return bad(
+                "min_confidence",
+                self.min_confidence.to_string(),
+                "must be in [0, 1]",
+            );
+        }
+        if self.min_fixes < 2 {
+            return bad("min_fixes", self.min_fixes.to_string(), "at least 2");
+        }
+        if !(self.inlier_threshold_m.is_finite() && self.inlier_threshold_m > 0.0) {
+            return bad(
+                "inlier_threshold_m",
+                self.inlier_threshold_m.to_string(),
+                "must be finite and > 0",
+            );
+        }
+        if !(self.nadir_weight.is_finite() && self.nadir_weight >= 0.0) {
+            return bad(
+                "nadir_weight",
+                self.nadir_weight.to_string(),
+                "must be finite and >= 0",
+            );
+        }
+        Ok(())
+    }
+}

@@ -1,0 +1,19 @@
+//! Errors of the fused system.
+
+use thiserror::Error;
+
+#[derive(Debug, Error)]
+pub enum JointLocError {
+    #[error(transparent)]
+    Slam(#[from] jointloc_slam::error::SlamError),
+    #[error(transparent)]
+    Absloc(#[from] jointloc_absloc::AbslocError),
+    #[error("invalid setting {field} = {value}: {reason}")]
+    InvalidConfig {
+        field: &'static str,
+        value: String,
+        reason: &'static str,
+    },
+}
+
+pub type Result<T> = std::result::Result<T, JointLocError>;

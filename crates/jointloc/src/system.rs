@@ -1,0 +1,342 @@
+//! The sequential JointLoc driver (paper §III-A, §III-C). Every frame is tracked by the SLAM;
+//! every k-th frame also goes to absolute localisation, whose fix (x, y from the map, z from
+//! the altimeter) is tied to the current keyframe. The SLAM→world similarity is re-fitted from
+//! all fixes against the keyframes' *current* poses whenever a fix arrives, and each fix
+//! becomes a global-position factor `w · ρ(‖S·C − P‖²)` of its keyframe in the local BA, so
+//! the map itself is pulled into the world frame. Poses are reported in the world frame once
+//! an alignment exists, and flagged as not geo-referenced before.
+
+use std::collections::BTreeMap;
+use std::time::Instant;
+
+use image::GrayImage;
+use jointloc_absloc::{AbsLocalizer, Outcome, Prior, heading_from_rotation};
+use jointloc_geometry::{CameraToWorld, PinholeCamera};
+use jointloc_slam::map::{GlobalFix, KeyFrameId};
+use jointloc_slam::orb::GrayImageView;
+use jointloc_slam::system::System;
+use jointloc_slam::tracking::TrackingState;
+use nalgebra::{Point3, Vector3};
+use serde::Serialize;
+
+use crate::alignment::{self, Correspondence, SlamToWorld};
+use crate::config::JointLocConfig;
+use crate::error::Result;
+
+/// An absolute fix as the fusion saw it.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct FixRecord {
+    pub frame: usize,
+    pub timestamp: f64,
+    /// World (x, y) of the map point under the image centre, z the altimeter reading.
+    pub position: [f64; 3],
+    pub confidence: f64,
+    pub ssim: f64,
+    pub match_score: f64,
+    pub tile: usize,
+    pub inliers: usize,
+    /// Whether the fix went into the fusion (confidence high enough and a keyframe to tie it
+    /// to) and, after the latest alignment, whether it was an inlier.
+    pub used: bool,
+    pub inlier: bool,
+    pub ms: f64,
+}
+
+/// One processed frame.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FusedFrame {
+    pub index: usize,
+    pub timestamp: f64,
+    pub state: TrackingState,
+    /// Camera-to-world in the SLAM frame, as tracked.
+    pub slam_pose: Option<CameraToWorld>,
+    /// Camera-to-world in the world frame (S · SLAM pose) with the alignment known at this
+    /// frame; `None` while not geo-referenced or not tracked.
+    pub world_pose: Option<CameraToWorld>,
+    /// Absolute localisation of this frame, if it ran: the fix or its failure (w = 0).
+    pub absolute: Option<Outcome>,
+    pub keyframe: Option<KeyFrameId>,
+}
+
+/// Per-module wall times, milliseconds.
+#[derive(Debug, Clone, Default, Serialize)]
+pub struct FusionTiming {
+    /// Absolute localisation (feature extraction + matching + homography + confidence), per fix.
+    pub absolute_ms: Vec<f64>,
+    /// Alignment re-fit and global-factor update, per fix.
+    pub alignment_ms: Vec<f64>,
+    /// Whole frame (SLAM + fusion), per frame.
+    pub frame_ms: Vec<f64>,
+}
+
+/// A used fix tied to a keyframe: the camera centre and the point on the optical axis at the
+/// altimeter range, both in the keyframe's camera frame, so they follow the keyframe when the
+/// local BA moves it.
+#[derive(Debug, Clone)]
+struct Tie {
+    record: usize,
+    keyframe: KeyFrameId,
+    centre_in_kf: Point3<f64>,
+    ground_in_kf: Point3<f64>,
+    world_camera: Point3<f64>,
+    world_ground: Point3<f64>,
+    weight: f64,
+    /// Last known SLAM positions (kept when the keyframe is culled).
+    slam_camera: Point3<f64>,
+    slam_ground: Point3<f64>,
+}
+
+/// The fused system.
+#[derive(Debug)]
+pub struct JointLoc {
+    config: JointLocConfig,
+    slam: System,
+    absolute: AbsLocalizer,
+    fixes: Vec<FixRecord>,
+    ties: Vec<Tie>,
+    alignment: Option<SlamToWorld>,
+    timing: FusionTiming,
+    next_index: usize,
+    last_world_pose: Option<CameraToWorld>,
+}
+
+impl JointLoc {
+    pub fn new(
+        camera: PinholeCamera,
+        absolute: AbsLocalizer,
+        config: JointLocConfig,
+    ) -> Result<Self> {
+        config.validate()?;
+        let slam = System::new(camera, config.slam.clone())?;
+        Ok(Self {
+            config,
+            slam,
+            absolute,
+            fixes: Vec::new(),
+            ties: Vec::new(),
+            alignment: None,
+            timing: FusionTiming::default(),
+            next_index: 0,
+            last_world_pose: None,
+        })
+    }
+
+    pub fn slam(&self) -> &System {
+        &self.slam
+    }
+
+    pub fn fixes(&self) -> &[FixRecord] {
+        &self.fixes
+    }
+
+    pub fn alignment(&self) -> Option<&SlamToWorld> {
+        self.alignment.as_ref()
+    }
+
+    pub fn timing(&self) -> &FusionTiming {
+        &self.timing
+    }
+
+    /// Processes the next frame (image, timestamp, altimeter reading).
+    pub fn process(
+        &mut self,
+        image: &GrayImage,
+        timestamp: f64,
+        altitude: Option<f64>,
+    ) -> Result<FusedFrame> {
+        let start = Instant::now();
+        let index = self.next_index;
+        self.next_index += 1;
+        let r = self
+            .slam
+            .process(GrayImageView::from(image), timestamp, altitude)?;
+        let mut absolute = None;
+        if index.is_multiple_of(self.config.fusion_every)
+            && let Some(alt) = altitude
+        {
+            let prior = self.prior();
+            let outcome = self.absolute.localize(image, alt, &prior)?;
+            self.timing.absolute_ms.push(outcome.ms());
+            if let Outcome::Fix(fix) = &outcome {
+                let t0 = Instant::now();
+                let used = self.tie_fix(fix, r.pose, alt);
+                self.fixes.push(FixRecord {
+                    frame: index,
+                    timestamp,
+                    position: fix.position,
+                    confidence: fix.confidence,
+                    ssim: fix.ssim,
+                    match_score: fix.match_score,
+                    tile: fix.tile,
+                    inliers: fix.inliers,
+                    used,
+                    inlier: false,
+                    ms: fix.ms,
+                });
+                if used {
+                    self.refit();
+                }
+                self.timing
+                    .alignment_ms
+                    .push(t0.elapsed().as_secs_f64() * 1e3);
+            }
+            absolute = Some(outcome);
+        }
+        let world_pose = match (&self.alignment, r.pose) {
+            (Some(a), Some(p)) => Some(a.sim3.transform_pose(&p)),
+            _ => None,
+        };
+        if world_pose.is_some() {
+            self.last_world_pose = world_pose;
+        }
+        self.timing
+            .frame_ms
+            .push(start.elapsed().as_secs_f64() * 1e3);
+        Ok(FusedFrame {
+            index,
+            timestamp,
+            state: r.state,
+            slam_pose: r.pose,
+            world_pose,
+            absolute,
+            keyframe: r.keyframe,
+        })
+    }
+
+    /// The search prior from the fused pose: position and heading of the last world pose.
+    fn prior(&self) -> Prior {
+        match &self.last_world_pose {
+            Some(p) => Prior {
+                position: Some([p.centre().x, p.centre().y]),
+                heading: Some(heading_from_rotation(&p.rotation().to_rotation_matrix())),
+            },
+            None => Prior::default(),
+        }
+    }
+
+    /// Ties a fix to the latest keyframe; false when it cannot be used.
+    fn tie_fix(
+        &mut self,
+        fix: &jointloc_absloc::Fix,
+        pose: Option<CameraToWorld>,
+        altitude: f64,
+    ) -> bool {
+        if fix.confidence < self.config.min_confidence {
+            return false;
+        }
+        let (Some(pose), Some(kf)) = (pose, self.slam.map().last_keyframe()) else {
+            return false;
+        };
+        // SLAM units per metre: the current alignment's inverse scale, else 1 (the SLAM map is
+        // metric from the altimeter at initialisation).
+        let per_metre = self.alignment.as_ref().map_or(1.0, |a| 1.0 / a.sim3.scale);
+        let centre = pose.centre();
+        let ground = pose
+            .0
+            .transform_point(&Point3::new(0.0, 0.0, altitude * per_metre));
+        let t_cw = kf.pose.0;
+        let [x, y, z] = fix.position;
+        self.ties.push(Tie {
+            record: self.fixes.len(),
+            keyframe: kf.id,
+            centre_in_kf: t_cw.transform_point(&centre),
+            ground_in_kf: t_cw.transform_point(&ground),
+            world_camera: Point3::new(x, y, z),
+            world_ground: Point3::new(x, y, z - altitude),
+            weight: fix.confidence,
+            slam_camera: centre,
+            slam_ground: ground,
+        });
+        true
+    }
+
+    /// Refreshes the tie points from the keyframes' current poses, re-fits the alignment and
+    /// updates every keyframe's global-position factor.
+    fn refit(&mut self) {
+        let map = self.slam.map();
+        for t in &mut self.ties {
+            if let Some(kf) = map.keyframe(t.keyframe) {
+                let t_wc = kf.pose.0.inverse();
+                t.slam_camera = t_wc.transform_point(&t.centre_in_kf);
+                t.slam_ground = t_wc.transform_point(&t.ground_in_kf);
+            }
+        }
+        let mut pairs = Vec::with_capacity(2 * self.ties.len());
+        for (i, t) in self.ties.iter().enumerate() {
+            // The ground point carries the fix's x, y exactly (the map point under the image
+            // centre); the camera centre adds the altimeter's z with a lower weight (its x, y
+            // assume a nadir view).
+            pairs.push(Correspondence {
+                slam: t.slam_ground,
+                world: t.world_ground,
+                weight: t.weight,
+                fix: i,
+            });
+            pairs.push(Correspondence {
+                slam: t.slam_camera,
+                world: t.world_camera,
+                weight: t.weight * self.config.nadir_weight,
+                fix: i,
+            });
+        }
+        let fitted = alignment::fit(
+            &pairs,
+            self.config.inlier_threshold_m,
+            self.config.ransac_iterations,
+            self.config.min_fixes,
+            self.config.seed,
+        );
+        let Some(fitted) = fitted else {
+            return;
+        };
+        for r in &mut self.fixes {
+            r.inlier = false;
+        }
+        let s = fitted.sim3;
+        // Global factor per keyframe: the keyframe centre's world position implied by each
+        // inlier fix (fix ground point + the SLAM lever arm from it to the keyframe centre),
+        // averaged with the confidences as weights.
+        let mut per_kf: BTreeMap<KeyFrameId, (Vector3<f64>, f64, f64)> = BTreeMap::new();
+        for &i in &fitted.inlier_fixes {
+            let t = &self.ties[i];
+            self.fixes[t.record].inlier = true;
+            let Some(kf) = self.slam.map().keyframe(t.keyframe) else {
+                continue;
+            };
+            let kf_centre = Point3::from(kf.centre());
+            let implied = t.world_ground.coords
+                + (s.transform_point(&kf_centre) - s.transform_point(&t.slam_ground));
+            let e = per_kf
+                .entry(t.keyframe)
+                .or_insert((Vector3::zeros(), 0.0, 0.0));
+            e.0 += t.weight * implied;
+            e.1 += t.weight;
+            e.2 = e.2.max(t.weight);
+        }
+        let map = self.slam.map_mut();
+        let ids: Vec<KeyFrameId> = map.keyframes().map(|k| k.id).collect();
+        for id in ids {
+            if let Some(kf) = map.keyframe_mut(id) {
+                kf.global_fix = per_kf.get(&id).map(|(sum, wsum, wmax)| GlobalFix {
+                    position: sum / *wsum,
+                    weight: *wmax,
+                });
+            }
+        }
+        self.slam.set_slam_to_world(Some(s));
+        self.alignment = Some(fitted);
+    }
+
+    /// The world-frame keyframe trajectory under the current alignment (empty before it).
+    pub fn keyframe_trajectory(&self) -> Result<Option<jointloc_geometry::trajectory::Trajectory>> {
+        let Some(a) = &self.alignment else {
+            return Ok(None);
+        };
+        let t = self.slam.keyframe_trajectory()?;
+        let poses = t.poses.iter().map(|p| a.sim3.transform_pose(p)).collect();
+        Ok(Some(
+            jointloc_geometry::trajectory::Trajectory::new(t.timestamps.clone(), poses)
+                .map_err(jointloc_slam::error::SlamError::from)?,
+        ))
+    }
+}
