@@ -4,6 +4,7 @@
 
 mod absloc;
 mod bench;
+mod demo;
 mod eval;
 mod matching;
 mod models;
@@ -30,6 +31,8 @@ enum Command {
     Absloc(absloc::Args),
     /// The paper's tables and figures on simulated datasets, in one command (report.md + JSON + SVG).
     Bench(bench::Args),
+    /// The whole pipeline on an embedded default (60 m crater flight): JointLoc vs VO vs absolute only.
+    Demo(demo::Args),
     /// APE/RPE of a trajectory against ground truth (same numbers as evo_ape / evo_rpe).
     Eval(eval::Args),
     /// Matcher benchmark on image pairs with a known homography (@N px, ms per pair).
@@ -55,6 +58,7 @@ fn main() -> std::process::ExitCode {
     let result = match cli.command {
         Command::Absloc(args) => absloc::run(args),
         Command::Bench(args) => bench::run(args),
+        Command::Demo(args) => demo::run(args),
         Command::Eval(args) => eval::run(args),
         Command::Match(args) => matching::run(args),
         Command::Models(args) => models::run(args),
