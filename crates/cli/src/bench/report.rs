@@ -170,6 +170,10 @@ impl Report {
 
     fn matching_md(&self, s: &mut String) {
         let _ = writeln!(s, "## 1. Matching (paper Table V)\n");
+        if self.matching.is_empty() {
+            let _ = writeln!(s, "Not run.\n");
+            return;
+        }
         let thresholds: BTreeSet<String> = self
             .matching
             .iter()
