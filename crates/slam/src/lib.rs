@@ -5,6 +5,7 @@
 //! tracking and local mapping on top of them.
 
 pub mod ba;
+pub mod cpu_time;
 pub mod error;
 pub mod frame;
 pub mod initializer;

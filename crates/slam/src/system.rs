@@ -11,6 +11,7 @@ use jointloc_geometry::{CameraToWorld, PinholeCamera, Sim3, WorldToCamera};
 use nalgebra::Isometry3;
 use serde::{Deserialize, Serialize};
 
+use crate::cpu_time::{cpu_ms, thread_cpu_ns};
 use crate::error::{Result, SlamError};
 use crate::frame::{Frame, image_entropy};
 use crate::local_mapping::{LocalMapper, LocalMappingConfig};
@@ -53,6 +54,19 @@ pub struct Timing {
     /// Local BA alone, per keyframe.
     pub lba_ms: Vec<f64>,
     /// Whole frame, per frame.
+    pub frame_ms: Vec<f64>,
+    /// The same five as thread CPU time (empty where the platform cannot tell): on a shared
+    /// machine the wall times above include waiting for a core.
+    pub cpu: CpuTiming,
+}
+
+/// Per-module thread CPU times, milliseconds (same entries as [`Timing`]'s wall times).
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct CpuTiming {
+    pub orb_ms: Vec<f64>,
+    pub tracking_ms: Vec<f64>,
+    pub local_mapping_ms: Vec<f64>,
+    pub lba_ms: Vec<f64>,
     pub frame_ms: Vec<f64>,
 }
 
@@ -189,12 +203,15 @@ impl System {
         self.next_index += 1;
         self.last_timestamp = Some(timestamp);
         let t0 = Instant::now();
+        let c0 = thread_cpu_ns();
         let features = self.extractor.extract(image)?;
         let entropy = image_entropy(&image);
         let mut frame = Frame::new(index, timestamp, features, &self.camera, altitude, entropy);
         let t1 = Instant::now();
+        let c1 = thread_cpu_ns();
         let outcome = self.tracker.track(&mut frame, &mut self.map, &self.ideal);
         let t2 = Instant::now();
+        let c2 = thread_cpu_ns();
         let mut keyframe = None;
         if outcome.initialised {
             self.mapper.add_recent(&self.map);
@@ -212,10 +229,18 @@ impl System {
             }
             self.timing.local_mapping_ms.push(report.total_ms);
             self.timing.lba_ms.push(report.lba_ms);
+            let cpu = &mut self.timing.cpu;
+            cpu.local_mapping_ms.extend(report.total_cpu_ms);
+            cpu.lba_ms.extend(report.lba_cpu_ms);
             keyframe = Some(kf);
         }
         let t3 = Instant::now();
+        let c3 = thread_cpu_ns();
         self.timing.orb_ms.push(ms(t1 - t0));
+        let cpu = &mut self.timing.cpu;
+        cpu.orb_ms.extend(cpu_ms(c0, c1));
+        cpu.tracking_ms.extend(cpu_ms(c1, c2));
+        cpu.frame_ms.extend(cpu_ms(c0, c3));
         self.timing.tracking_ms.push(ms(t2 - t1));
         self.timing.frame_ms.push(ms(t3 - t0));
         if let (Some(pose), Some(reference)) = (frame.pose, frame.reference)

@@ -13,6 +13,7 @@ use std::time::Instant;
 use jointloc_geometry::{PinholeCamera, Sim3};
 use serde::{Deserialize, Serialize};
 
+use crate::cpu_time::{cpu_ms, thread_cpu_ns};
 use crate::error::Result;
 use crate::frame::Frame;
 use crate::map::{KeyFrame, KeyFrameId, Map};
@@ -61,6 +62,9 @@ pub struct LocalMappingReport {
     pub lba_ms: f64,
     /// Whole keyframe processing, milliseconds.
     pub total_ms: f64,
+    /// The same two as thread CPU time, milliseconds (`None` where unavailable).
+    pub lba_cpu_ms: Option<f64>,
+    pub total_cpu_ms: Option<f64>,
 }
 
 /// The local mapper's state: points created recently, still on probation.
@@ -111,6 +115,7 @@ impl LocalMapper {
         slam_to_world: Option<&Sim3>,
     ) -> Result<LocalMappingReport> {
         let start = Instant::now();
+        let start_cpu = thread_cpu_ns();
         let mut report = LocalMappingReport {
             keyframe: Some(kf),
             ..LocalMappingReport::default()
@@ -124,10 +129,13 @@ impl LocalMapper {
         map.update_connections(kf);
         report.fused = fusion::fuse_with_neighbours(map, kf, camera, cfg.fusion_neighbours);
         let t = Instant::now();
+        let t_cpu = thread_cpu_ns();
         report.lba = local_bundle_adjustment(map, kf, camera, &cfg.ba, slam_to_world)?;
         report.lba_ms = t.elapsed().as_secs_f64() * 1e3;
+        report.lba_cpu_ms = cpu_ms(t_cpu, thread_cpu_ns());
         report.culled_keyframes = culling::cull_keyframes(map, kf, cfg.keyframe_redundancy);
         report.total_ms = start.elapsed().as_secs_f64() * 1e3;
+        report.total_cpu_ms = cpu_ms(start_cpu, thread_cpu_ns());
         tracing::debug!(
             keyframe = %kf,
             new_points = report.new_points,
