@@ -25,20 +25,23 @@ impl Circle {
     }
 
     /// Orientation in [0, 2π) of the disc centred at (x, y); the disc must fit in the image.
-    /// A flat patch (no centroid offset) gives 0.
+    /// A flat patch (no centroid offset) gives 0. Moments fit in i32 for any radius ≤ 31
+    /// (|m| ≤ 255 · Σ|u| < 2^31), which lets the row sums vectorise.
     pub fn angle(&self, img: &[u8], w: usize, x: usize, y: usize) -> f64 {
         let r = self.radius as isize;
-        let (mut m10, mut m01) = (0i64, 0i64);
+        let (mut m10, mut m01) = (0i32, 0i32);
         for v in -r..=r {
             let um = self.u_max[v.unsigned_abs()] as isize;
             let row = (y as isize + v) as usize * w;
-            let mut sum_row = 0i64;
-            for u in -um..=um {
-                let p = img[row + (x as isize + u) as usize] as i64;
-                m10 += u as i64 * p;
+            let start = (row as isize + x as isize - um) as usize;
+            let pixels = &img[start..start + 2 * um as usize + 1];
+            let mut sum_row = 0i32;
+            for (u, &p) in (-um as i32..).zip(pixels) {
+                let p = p as i32;
+                m10 += u * p;
                 sum_row += p;
             }
-            m01 += v as i64 * sum_row;
+            m01 += v as i32 * sum_row;
         }
         if m10 == 0 && m01 == 0 {
             return 0.0;

@@ -116,18 +116,28 @@ pub fn resize_bilinear(src: &[u8], sw: usize, sh: usize, dw: usize, dh: usize) -
     };
     let xs = axis(sw, dw);
     let ys = axis(sh, dh);
-    let mut out = vec![0u8; dw * dh];
-    let mut row0 = vec![0i32; dw];
-    let mut row1 = vec![0i32; dw];
-    for (dy, &(y0, y1, wy)) in ys.iter().enumerate() {
-        let (r0, r1) = (&src[y0 * sw..(y0 + 1) * sw], &src[y1 * sw..(y1 + 1) * sw]);
-        for (dx, &(x0, x1, wx)) in xs.iter().enumerate() {
-            row0[dx] = r0[x0] as i32 * (ONE - wx) + r0[x1] as i32 * wx;
-            row1[dx] = r1[x0] as i32 * (ONE - wx) + r1[x1] as i32 * wx;
+    // Horizontal pass once per source row (rows are shared by neighbouring output rows).
+    let mut horiz = vec![0i32; sh * dw];
+    let mut done = vec![false; sh];
+    for &(y0, y1, _) in &ys {
+        for y in [y0, y1] {
+            if done[y] {
+                continue;
+            }
+            done[y] = true;
+            let r = &src[y * sw..(y + 1) * sw];
+            for (h, &(x0, x1, wx)) in horiz[y * dw..(y + 1) * dw].iter_mut().zip(&xs) {
+                *h = r[x0] as i32 * (ONE - wx) + r[x1] as i32 * wx;
+            }
         }
+    }
+    let mut out = vec![0u8; dw * dh];
+    let half = 1i64 << (2 * SHIFT - 1);
+    for (dy, &(y0, y1, wy)) in ys.iter().enumerate() {
+        let row0 = &horiz[y0 * dw..(y0 + 1) * dw];
+        let row1 = &horiz[y1 * dw..(y1 + 1) * dw];
         let dst = &mut out[dy * dw..(dy + 1) * dw];
-        let half = 1i64 << (2 * SHIFT - 1);
-        for (o, (&a, &b)) in dst.iter_mut().zip(row0.iter().zip(&row1)) {
+        for (o, (&a, &b)) in dst.iter_mut().zip(row0.iter().zip(row1)) {
             let v = (a as i64 * (ONE - wy) as i64 + b as i64 * wy as i64 + half) >> (2 * SHIFT);
             *o = v.clamp(0, 255) as u8;
         }
