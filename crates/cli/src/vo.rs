@@ -149,15 +149,18 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         t.local_mapping_ms.len(),
         median(&t.lba_ms)
     );
+    // Thread CPU time advances at scheduler ticks and switches (a few ms), so one short
+    // interval is coarse; the mean over many is not, hence means rather than medians.
+    let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len().max(1) as f64;
     let c = &t.cpu;
     if !c.frame_ms.is_empty() {
         println!(
-            "median CPU ms: ORB extraction {:.1}, tracking {:.1}, ORB + tracking {:.1}, local mapping {:.1}, local BA {:.1}",
-            median(&c.orb_ms),
-            median(&c.tracking_ms),
-            median(&sum(&c.orb_ms, &c.tracking_ms)),
-            median(&c.local_mapping_ms),
-            median(&c.lba_ms)
+            "mean CPU ms: ORB extraction {:.1}, tracking {:.1}, ORB + tracking {:.1}, local mapping {:.1}, local BA {:.1}",
+            mean(&c.orb_ms),
+            mean(&c.tracking_ms),
+            mean(&sum(&c.orb_ms, &c.tracking_ms)),
+            mean(&c.local_mapping_ms),
+            mean(&c.lba_ms)
         );
     }
     println!(
