@@ -146,12 +146,14 @@ mod tests {
                 let r = rng.random_range(10.0..50.0);
                 let a: f64 = rng.random_range(0.0..std::f64::consts::TAU);
                 Vector3::new(r * a.cos(), r * a.sin(), 0.0)
-            } else {
+            } else if noise > 0.0 {
                 Vector3::new(
                     rng.random_range(-noise..noise),
                     rng.random_range(-noise..noise),
                     0.0,
                 )
+            } else {
+                Vector3::zeros()
             };
             for (p, w) in [(world, 0.6), (world - Vector3::new(0.0, 0.0, 10.0), 0.2)] {
                 out.push(Correspondence {
