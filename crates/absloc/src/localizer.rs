@@ -138,7 +138,8 @@ pub struct Prior {
 /// An absolute fix.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Fix {
-    /// World `(x, y, z)`: the map point under the image centre, z from the altimeter.
+    /// World `(x, y, z)`: the map point under the image centre; z = ground height there (the
+    /// map's elevation model, else 0) + the altimeter reading.
     pub position: [f64; 3],
     /// `w` under the configured mode, in [0, 1].
     pub confidence: f64,
@@ -556,7 +557,7 @@ impl AbsLocalizer {
             heading: Some(best.heading),
         };
         let fix = Fix {
-            position: [x, y, altitude],
+            position: [x, y, self.tiles.ground_height(x, y) + altitude],
             confidence,
             ssim,
             match_score,

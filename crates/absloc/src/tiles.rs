@@ -11,7 +11,7 @@
 use std::path::{Path, PathBuf};
 
 use image::GrayImage;
-use jointloc_sim::MapInfo;
+use jointloc_sim::{ElevationModel, MapInfo};
 
 use crate::error::{AbslocError, Result, read_gray};
 
@@ -41,6 +41,8 @@ pub struct MapTiles {
     /// Folder the map came from (the feature cache lives beside it).
     root: PathBuf,
     fingerprint: u64,
+    /// The terrain elevation model of `map.toml`'s `[elevation]`, if any.
+    elevation: Option<ElevationModel>,
 }
 
 impl MapTiles {
@@ -122,14 +124,21 @@ impl MapTiles {
             }
             map
         };
-        Self::assemble(
+        let elevation = info
+            .elevation
+            .as_ref()
+            .map(|e| ElevationModel::read(e, root))
+            .transpose()?;
+        let mut out = Self::assemble(
             map,
             info.gsd_m,
             (info.tiles.width_px, info.tiles.height_px),
             (info.tiles.cols, info.tiles.rows),
             tiles,
             root,
-        )
+        )?;
+        out.elevation = elevation;
+        Ok(out)
     }
 
     /// Reads a bare tile folder `<idx>_<x>_<y>.png` (the paper's layout). `gsd_m` is required:
@@ -254,7 +263,19 @@ impl MapTiles {
             tiles,
             root: root.to_path_buf(),
             fingerprint,
+            elevation: None,
         })
+    }
+
+    /// Terrain height at world `(x, y)` from the map's elevation model; 0 (flat ground at the
+    /// datum, DESIGN §3) when the map has none.
+    pub fn ground_height(&self, x: f64, y: f64) -> f64 {
+        self.elevation.as_ref().map_or(0.0, |e| e.height_at(x, y))
+    }
+
+    /// Whether the map has an elevation model.
+    pub fn has_elevation(&self) -> bool {
+        self.elevation.is_some()
     }
 
     /// The whole map.

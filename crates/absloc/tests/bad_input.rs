@@ -74,6 +74,43 @@ fn missing_and_unreadable_maps_are_errors() {
 }
 
 #[test]
+fn a_broken_elevation_model_is_an_error_naming_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    map_folder(d);
+    let mut info = MapInfo::read(&d.join("map.toml")).unwrap();
+    info.elevation = Some(jointloc_sim::ElevationInfo {
+        image: "elevation.png".into(),
+        gsd_m: 0.2,
+        width_px: 250,
+        height_px: 250,
+        origin_x_m: 0.075,
+        origin_y_m: -0.075,
+        offset_m: -5.0,
+        scale_m: 0.001,
+        sigma_m: 0.05,
+    });
+    info.write(&d.join("map.toml")).unwrap();
+    let e = MapTiles::open(d).unwrap_err();
+    assert!(e.to_string().contains("elevation.png"), "{e}");
+    std::fs::write(d.join("elevation.png"), b"not a png").unwrap();
+    let e = MapTiles::open(d).unwrap_err();
+    assert!(e.to_string().contains("elevation.png"), "{e}");
+    // The right size at 16 bits: heights come out as offset + value · scale.
+    image::ImageBuffer::<image::Luma<u16>, _>::from_pixel(250, 250, image::Luma([7000u16]))
+        .save(d.join("elevation.png"))
+        .unwrap();
+    let tiles = MapTiles::open(d).unwrap();
+    assert!((tiles.ground_height(20.0, -20.0) - 2.0).abs() < 1e-4);
+    // A wrong size.
+    image::ImageBuffer::<image::Luma<u16>, _>::from_pixel(25, 250, image::Luma([7000u16]))
+        .save(d.join("elevation.png"))
+        .unwrap();
+    let e = MapTiles::open(d).unwrap_err();
+    assert!(e.to_string().contains("25x250"), "{e}");
+}
+
+#[test]
 fn a_missing_gsd_is_an_error() {
     let dir = tempfile::tempdir().unwrap();
     let tiles = dir.path().join("satellite");

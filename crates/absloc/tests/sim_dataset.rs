@@ -75,6 +75,7 @@ fn run(matcher: &str) -> Vec<f64> {
     let pipeline = resolve(matcher, &opts).unwrap();
     let ds = UavDataset::open(dir).unwrap();
     let tiles = MapTiles::open(dir).unwrap();
+    assert!(tiles.has_elevation());
     let cache_dir = tempfile::tempdir().unwrap();
     let config = AbsLocConfig {
         cache_dir: Some(cache_dir.path().to_path_buf()),
@@ -92,6 +93,14 @@ fn run(matcher: &str) -> Vec<f64> {
                 .fix()
                 .unwrap_or_else(|| panic!("{matcher}: {}: {out:?}", f.path.display()));
             let c = f.ground_truth.unwrap().centre();
+            // z = the map's elevation model under the fix + the altimeter: within the
+            // altimeter's and the DEM's noise of the truth, on any terrain height.
+            assert!(
+                (fix.position[2] - c.z).abs() < 0.5,
+                "{matcher}: z {} vs true {}",
+                fix.position[2],
+                c.z
+            );
             ((fix.position[0] - c.x).powi(2) + (fix.position[1] - c.y).powi(2)).sqrt()
         })
         .collect()

@@ -30,6 +30,7 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::camera_yaml::write_camera_yaml;
+use crate::elevation::{simulate_dem, write_png16};
 use crate::error::{Result, SimError};
 use crate::grid::Grid;
 use crate::map_toml::{MapInfo, SceneInfo, covered_length, tile_stride};
@@ -99,7 +100,11 @@ mod stream {
     pub const ALTIMETER: u64 = 5;
     pub const SATELLITE_NOISE: u64 = 6;
     pub const FRAME_NOISE: u64 = 7;
+    pub const DEM: u64 = 8;
 }
+
+/// File name of the simulated elevation model.
+pub const ELEVATION_IMAGE: &str = "elevation.png";
 
 /// SplitMix64 of `seed` and `stream`: independent sub-seeds.
 pub fn sub_seed(seed: u64, stream: u64) -> u64 {
@@ -368,7 +373,13 @@ pub fn prepare_output_dir(dir: &Path, overwrite: bool) -> Result<()> {
                         .map_err(|source| SimError::Io { path: p, source })?;
                 }
             }
-            for name in ["satellite.png", "camera.yaml", "map.toml", "sim.toml"] {
+            for name in [
+                "satellite.png",
+                "elevation.png",
+                "camera.yaml",
+                "map.toml",
+                "sim.toml",
+            ] {
                 let p = dir.join(name);
                 if p.is_file() {
                     std::fs::remove_file(&p).map_err(|source| SimError::Io { path: p, source })?;
@@ -468,7 +479,19 @@ pub fn write_dataset(
             write_png(&tiles_dir.join(tile.file_name()), &window)
         })?;
     }
-    plan.map.write(&out_dir.join("map.toml"))?;
+    let mut map = plan.map.clone();
+    if sat.dem.post_px > 0 {
+        let (info, dem) = simulate_dem(
+            terrain,
+            sat.dem.post_px as usize * plan.cells_per_pixel,
+            sat.dem.sigma_m,
+            ELEVATION_IMAGE,
+            sub_seed(cfg.seed, stream::DEM),
+        )?;
+        write_png16(&out_dir.join(&info.image), &dem)?;
+        map.elevation = Some(info);
+    }
+    map.write(&out_dir.join("map.toml"))?;
     progress(Stage::Satellite, 1, 1);
     seconds[2] = t.elapsed().as_secs_f64();
 

@@ -5,6 +5,7 @@
 pub mod camera_yaml;
 pub mod craters;
 pub mod dataset;
+pub mod elevation;
 pub mod error;
 pub mod grid;
 pub mod map_toml;
@@ -21,6 +22,7 @@ pub mod trajectory;
 pub use dataset::{
     DatasetPlan, DatasetSummary, SimConfig, Stage, generate_dataset, plan_dataset, write_dataset,
 };
+pub use elevation::{DemConfig, ElevationInfo, ElevationModel};
 pub use error::{Result, SimError};
 pub use grid::Grid;
 pub use map_toml::MapInfo;

@@ -11,6 +11,7 @@ use std::path::Path;
 
 use serde::{Deserialize, Serialize};
 
+use crate::elevation::ElevationInfo;
 use crate::error::{Result, SimError};
 use crate::satellite::Difficulty;
 use crate::shading::Sun;
@@ -34,6 +35,10 @@ pub struct MapInfo {
     /// Always `"pixel-center"`: world (0, 0) is the centre of pixel (0, 0).
     pub origin: String,
     pub tiles: TileGrid,
+    /// The terrain's elevation model, when the map has one: fixes then get
+    /// z = DEM(x, y) + altimeter instead of assuming flat ground at z = 0.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub elevation: Option<ElevationInfo>,
     /// How the map was made (absent for maps not from the simulator).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub scene: Option<SceneInfo>,
@@ -162,6 +167,7 @@ impl MapInfo {
                     0
                 },
             },
+            elevation: None,
             scene: None,
         };
         info.validate(Path::new("map.toml"))?;
@@ -254,6 +260,9 @@ impl MapInfo {
                 "tiles.cols/rows = {}/{} disagree with the layout ({cols}/{rows})",
                 t.cols, t.rows
             )));
+        }
+        if let Some(e) = &self.elevation {
+            e.validate(path)?;
         }
         Ok(())
     }

@@ -10,6 +10,7 @@
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
+use crate::elevation::DemConfig;
 use crate::error::{Result, SimError};
 use crate::grid::Grid;
 use crate::sensor::SensorConfig;
@@ -94,6 +95,8 @@ pub struct SatelliteConfig {
     pub sensor: SensorConfig,
     /// Overlap ratio of neighbouring tiles (0.5: stride = half a tile).
     pub tile_overlap: f64,
+    /// The elevation model written beside the map (`elevation.png`).
+    pub dem: DemConfig,
 }
 
 impl Default for SatelliteConfig {
@@ -110,6 +113,7 @@ impl Default for SatelliteConfig {
                 ..SensorConfig::default()
             },
             tile_overlap: 0.5,
+            dem: DemConfig::default(),
         }
     }
 }
@@ -156,6 +160,7 @@ impl SatelliteConfig {
             ));
         }
         self.sensor.validate("satellite.sensor")?;
+        self.dem.validate()?;
         Ok(factor as usize)
     }
 }

@@ -14,7 +14,7 @@ use jointloc_geometry::RadTan;
 use jointloc_sim::camera_yaml::read_camera_yaml;
 use jointloc_sim::dataset::{DatasetPlan, SimConfig, plan_dataset, write_dataset};
 use jointloc_sim::sensor::SensorConfig;
-use jointloc_sim::{Difficulty, Grid, MapInfo, Sun, Terrain};
+use jointloc_sim::{Difficulty, ElevationModel, Grid, MapInfo, Sun, Terrain};
 use nalgebra::Point3;
 
 /// Smooth rolling ground (no cast shadows, nearly uniform light over a marker) with a faint
@@ -224,6 +224,21 @@ fn run_case(case: &Case, tmp: &Path) {
     assert!(
         errors.iter().any(|e| e.abs() > 1e-3),
         "altimeter must not be exact"
+    );
+
+    // The elevation model beside the map is the terrain under the flight, smoothed over its
+    // posts and with its stated noise.
+    let info = map.elevation.as_ref().expect("simulated maps carry a DEM");
+    let dem = ElevationModel::read(info, &a).unwrap();
+    let mut worst_dem: f64 = 0.0;
+    for (_, pose) in &gt {
+        let c = pose.centre();
+        let err = dem.height_at(c.x, c.y) - plain.height_at(c.x, c.y);
+        worst_dem = worst_dem.max(err.abs());
+    }
+    assert!(
+        worst_dem < 5.0 * info.sigma_m + 0.02,
+        "DEM off by {worst_dem:.3} m"
     );
 }
 
