@@ -1,4 +1,6 @@
-//! `jointloc run`: the fused system on a dataset, sequentially. Writes the world-frame pose of
+//! `jointloc run`: the fused system on a dataset, threaded (real time: absolute localisation on
+//! its own thread, frames fed as fast as they are tracked) or `--sequential` (deterministic).
+//! Writes the world-frame pose of
 //! every frame as it was known at that frame (TUM, online; frames before the first alignment
 //! are comment lines flagged "not geo-referenced"), the keyframe trajectory, the fixes with
 //! their confidences, per-module timing (paper Table VII) and prints APE against ground truth
@@ -35,10 +37,17 @@ pub struct Args {
     /// Confidence of the fixes: adaptive (SSIM × matching score), ssim, matching or fixed:V.
     #[arg(long, value_name = "MODE")]
     confidence: Option<ConfidenceMode>,
-    /// Process frames in order, mapping each keyframe before the next frame (deterministic).
-    /// This is the only mode so far: the threaded real-time mode is not implemented.
+    /// Run absolute localisation inline on its frames (deterministic, repeatable output)
+    /// instead of on its own thread (real time: frames due while it is busy are skipped).
     #[arg(long)]
     sequential: bool,
+    /// Robustness test: replace this fraction of the fixes by positions 10–50 m off
+    /// (seeded; the confidence is kept). Flagged in fixes.txt.
+    #[arg(long, value_name = "FRACTION")]
+    wrong_fixes: Option<f64>,
+    /// Robustness test: no absolute localisation for DURATION seconds from START.
+    #[arg(long, value_name = "START:DURATION")]
+    outage: Option<String>,
     /// Settings (TOML, `JointLocConfig` with [slam] and [absloc] tables); flags override it.
     #[arg(long, value_name = "PATH")]
     config: Option<PathBuf>,
@@ -85,6 +94,17 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     if let Some(c) = args.confidence {
         config.absloc.confidence = c;
     }
+    if let Some(f) = args.wrong_fixes {
+        config.faults.wrong_fix_fraction = f;
+    }
+    if let Some(o) = &args.outage {
+        let (start, duration) = o
+            .split_once(':')
+            .and_then(|(a, b)| Some((a.trim().parse::<f64>().ok()?, b.trim().parse::<f64>().ok()?)))
+            .with_context(|| format!("--outage {o}: expected START:DURATION in seconds"))?;
+        config.faults.outage_start_s = Some(start);
+        config.faults.outage_duration_s = duration;
+    }
     config.validate()?;
     let camera = read_camera_yaml(&args.dataset.join("camera.yaml"))?.camera;
     let sequence = Sequence::open(&args.dataset)?;
@@ -98,12 +118,18 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         },
     )?;
     let absolute = AbsLocalizer::new(tiles, camera, pipeline, config.absloc.clone())?;
-    if !args.sequential {
-        tracing::info!("threaded mode is not implemented; running sequentially");
-    }
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("creating {}", args.out.display()))?;
-    let mut system = JointLoc::new(camera, absolute, config.clone())?;
+    let mut system = if args.sequential {
+        JointLoc::new(camera, absolute, config.clone())?
+    } else {
+        JointLoc::threaded(camera, absolute, config.clone())?
+    };
+    let mode = if args.sequential {
+        "sequential"
+    } else {
+        "threaded"
+    };
     let traj_path = args.out.join("trajectory.tum");
     let mut traj = std::io::BufWriter::new(
         std::fs::File::create(&traj_path)
@@ -184,13 +210,17 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let used = system.fixes().iter().filter(|f| f.used).count();
     let inliers = system.fixes().iter().filter(|f| f.inlier).count();
     println!(
-        "{n} frames in {wall:.1} s ({hz:.1} Hz, sequential); {lost} lost; geo-referenced from frame {}; {written} world poses written",
+        "{n} frames in {wall:.1} s ({hz:.1} Hz, {mode}); {lost} lost; geo-referenced from frame {}; {written} world poses written",
         geo_from.map_or("-".into(), |i: usize| i.to_string())
     );
+    let injected = system.fixes().iter().filter(|f| f.injected).count();
     println!(
-        "fixes: {} attempts, {} found, {used} used, {inliers} inliers of the final alignment",
+        "fixes: {} attempts, {} found, {used} used, {inliers} inliers of the final alignment; \
+         {} skipped (thread busy), {} skipped (outage), {injected} made wrong on purpose",
         fus_t.absolute_ms.len(),
-        system.fixes().len()
+        system.fixes().len(),
+        fus_t.skipped_busy,
+        fus_t.skipped_outage,
     );
     println!(
         "median ms: absolute localisation {:.1}, ORB {:.1}, tracking {:.1}, local mapping {:.1}, local BA {:.1}",
@@ -203,6 +233,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let mut summary = serde_json::json!({
         "frames": n, "world_poses": written, "geo_referenced_from": geo_from, "lost": lost,
         "fixes_found": system.fixes().len(), "fixes_used": used, "fixes_inliers": inliers, "hz": hz,
+        "mode": mode, "absolute_attempts": fus_t.absolute_ms.len(),
+        "skipped_busy": fus_t.skipped_busy, "skipped_outage": fus_t.skipped_outage,
+        "fixes_injected_wrong": injected,
     });
     let gt_path = args.dataset.join("uav/gt.txt");
     if gt_path.exists() && written >= 3 {
@@ -233,11 +266,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
 
 fn write_fixes(path: &Path, system: &JointLoc) -> anyhow::Result<()> {
     let mut s = String::from(
-        "# timestamp x y z qx qy qz qw confidence tile ssim match_score inliers used inlier (x, y: map point under the image centre; z: altimeter)\n",
+        "# timestamp x y z qx qy qz qw confidence tile ssim match_score inliers used inlier injected (x, y: map point under the image centre; z: map elevation there + altimeter; injected: made wrong on purpose)\n",
     );
     for f in system.fixes() {
         s.push_str(&format!(
-            "{:.6} {:.4} {:.4} {:.4} 0 0 0 1 {:.4} {} {:.4} {:.4} {} {} {}\n",
+            "{:.6} {:.4} {:.4} {:.4} 0 0 0 1 {:.4} {} {:.4} {:.4} {} {} {} {}\n",
             f.timestamp,
             f.position[0],
             f.position[1],
@@ -248,7 +281,8 @@ fn write_fixes(path: &Path, system: &JointLoc) -> anyhow::Result<()> {
             f.match_score,
             f.inliers,
             u8::from(f.used),
-            u8::from(f.inlier)
+            u8::from(f.inlier),
+            u8::from(f.injected)
         ));
     }
     std::fs::write(path, s).with_context(|| format!("writing {}", path.display()))

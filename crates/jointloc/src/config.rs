@@ -5,6 +5,7 @@ use jointloc_slam::system::SystemConfig;
 use serde::{Deserialize, Serialize};
 
 use crate::error::{JointLocError, Result};
+use crate::faults::FaultConfig;
 
 /// JointLoc settings; the SLAM and absolute-localisation settings are nested.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -28,6 +29,8 @@ pub struct JointLocConfig {
     pub seed: u64,
     pub slam: SystemConfig,
     pub absloc: AbsLocConfig,
+    /// Fault injection for robustness runs (off by default).
+    pub faults: FaultConfig,
 }
 
 impl Default for JointLocConfig {
@@ -42,6 +45,7 @@ impl Default for JointLocConfig {
             seed: 0,
             slam: SystemConfig::default(),
             absloc: AbsLocConfig::default(),
+            faults: FaultConfig::default(),
         }
     }
 }
@@ -82,6 +86,6 @@ impl JointLocConfig {
                 "must be finite and >= 0",
             );
         }
-        Ok(())
+        self.faults.validate()
     }
 }

@@ -14,6 +14,8 @@ pub enum JointLocError {
         value: String,
         reason: &'static str,
     },
+    #[error("absolute-localisation thread: {message}")]
+    Thread { message: String },
 }
 
 pub type Result<T> = std::result::Result<T, JointLocError>;

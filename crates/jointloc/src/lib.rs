@@ -4,12 +4,15 @@
 //! - [`config`]: [`JointLocConfig`] (fusion frequency, alignment, nested SLAM and absolute
 //!   localisation settings);
 //! - [`alignment`]: the robust, confidence-weighted SLAM→world similarity;
-//! - [`system`]: the sequential driver [`JointLoc`].
+//! - [`system`]: the driver [`JointLoc`], sequential or threaded;
+//! - [`faults`]: wrong fixes and outages injected for the robustness evaluation.
 
 pub mod alignment;
 pub mod config;
 pub mod error;
+pub mod faults;
 pub mod system;
+mod worker;
 
 pub use config::JointLocConfig;
 pub use error::{JointLocError, Result};

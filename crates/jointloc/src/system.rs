@@ -1,6 +1,8 @@
-//! The sequential JointLoc driver (paper §III-A, §III-C). Every frame is tracked by the SLAM;
-//! every k-th frame also goes to absolute localisation, whose fix (x, y from the map, z from
-//! the altimeter) is tied to the current keyframe. The SLAM→world similarity is re-fitted from
+//! The JointLoc driver (paper §III-A, §III-C). Every frame is tracked by the SLAM; every k-th
+//! frame also goes to absolute localisation, whose fix (x, y from the map, z from the altimeter
+//! over the map's elevation) is tied to the keyframe that was current at that frame. In the
+//! sequential mode the search runs inline (deterministic); in the threaded mode it runs on its
+//! own thread and its fix is applied when it arrives, a few frames later. The SLAM→world similarity is re-fitted from
 //! all fixes against the keyframes' *current* poses whenever a fix arrives, and each fix
 //! becomes a global-position factor `w · ρ(‖S·C − P‖²)` of its keyframe in the local BA, so
 //! the map itself is pulled into the world frame. Poses are reported in the world frame once
@@ -16,12 +18,13 @@ use jointloc_slam::map::{GlobalFix, KeyFrameId};
 use jointloc_slam::orb::GrayImageView;
 use jointloc_slam::system::System;
 use jointloc_slam::tracking::TrackingState;
-use nalgebra::{Point3, Vector3};
+use nalgebra::{Isometry3, Point3, Vector3};
 use serde::Serialize;
 
 use crate::alignment::{self, Correspondence, SlamToWorld};
 use crate::config::JointLocConfig;
 use crate::error::Result;
+use crate::worker::AbsoluteWorker;
 
 /// An absolute fix as the fusion saw it.
 #[derive(Debug, Clone, PartialEq, Serialize)]
@@ -39,6 +42,8 @@ pub struct FixRecord {
     /// to) and, after the latest alignment, whether it was an inlier.
     pub used: bool,
     pub inlier: bool,
+    /// Replaced by a wrong position by fault injection ([`crate::faults`]).
+    pub injected: bool,
     pub ms: f64,
 }
 
@@ -53,8 +58,10 @@ pub struct FusedFrame {
     /// Camera-to-world in the world frame (S · SLAM pose) with the alignment known at this
     /// frame; `None` while not geo-referenced or not tracked.
     pub world_pose: Option<CameraToWorld>,
-    /// Absolute localisation of this frame, if it ran: the fix or its failure (w = 0).
-    pub absolute: Option<Outcome>,
+    /// Absolute localisation results applied at this frame (the fix or its failure, w = 0),
+    /// with the frame each was computed for: this frame in the sequential mode, an earlier
+    /// one in the threaded mode.
+    pub absolute: Vec<(usize, Outcome)>,
     pub keyframe: Option<KeyFrameId>,
 }
 
@@ -67,6 +74,10 @@ pub struct FusionTiming {
     pub alignment_ms: Vec<f64>,
     /// Whole frame (SLAM + fusion), per frame.
     pub frame_ms: Vec<f64>,
+    /// Frames due for absolute localisation that the busy thread skipped (threaded mode).
+    pub skipped_busy: usize,
+    /// Frames due for absolute localisation during an injected outage.
+    pub skipped_outage: usize,
 }
 
 /// A used fix tied to a keyframe: the camera centre and the point on the optical axis at the
@@ -86,12 +97,31 @@ struct Tie {
     slam_ground: Point3<f64>,
 }
 
+/// The state at the frame an absolute search was started for, so its fix can be tied when it
+/// arrives: the frame's SLAM pose and the then current keyframe with its pose then.
+#[derive(Debug, Clone)]
+struct Submitted {
+    frame: usize,
+    timestamp: f64,
+    altitude: f64,
+    pose: Option<CameraToWorld>,
+    keyframe: Option<(KeyFrameId, Isometry3<f64>)>,
+}
+
+/// Where absolute localisation runs.
+#[derive(Debug)]
+enum Absolute {
+    Inline(Box<AbsLocalizer>),
+    Thread(AbsoluteWorker),
+}
+
 /// The fused system.
 #[derive(Debug)]
 pub struct JointLoc {
     config: JointLocConfig,
     slam: System,
-    absolute: AbsLocalizer,
+    absolute: Absolute,
+    pending: BTreeMap<usize, Submitted>,
     fixes: Vec<FixRecord>,
     ties: Vec<Tie>,
     alignment: Option<SlamToWorld>,
@@ -101,17 +131,38 @@ pub struct JointLoc {
 }
 
 impl JointLoc {
+    /// The sequential, deterministic system: absolute localisation runs inline.
     pub fn new(
         camera: PinholeCamera,
         absolute: AbsLocalizer,
         config: JointLocConfig,
     ) -> Result<Self> {
+        Self::build(camera, Absolute::Inline(Box::new(absolute)), config)
+    }
+
+    /// The real-time system: absolute localisation on its own thread; frames due while it is
+    /// busy are skipped (counted in [`FusionTiming::skipped_busy`]).
+    pub fn threaded(
+        camera: PinholeCamera,
+        absolute: AbsLocalizer,
+        config: JointLocConfig,
+    ) -> Result<Self> {
+        config.validate()?;
+        Self::build(
+            camera,
+            Absolute::Thread(AbsoluteWorker::spawn(absolute)?),
+            config,
+        )
+    }
+
+    fn build(camera: PinholeCamera, absolute: Absolute, config: JointLocConfig) -> Result<Self> {
         config.validate()?;
         let slam = System::new(camera, config.slam.clone())?;
         Ok(Self {
             config,
             slam,
             absolute,
+            pending: BTreeMap::new(),
             fixes: Vec::new(),
             ties: Vec::new(),
             alignment: None,
@@ -150,37 +201,40 @@ impl JointLoc {
         let r = self
             .slam
             .process(GrayImageView::from(image), timestamp, altitude)?;
-        let mut absolute = None;
+        let mut absolute = Vec::new();
         if index.is_multiple_of(self.config.fusion_every)
             && let Some(alt) = altitude
         {
-            let prior = self.prior();
-            let outcome = self.absolute.localize(image, alt, &prior)?;
-            self.timing.absolute_ms.push(outcome.ms());
-            if let Outcome::Fix(fix) = &outcome {
-                let t0 = Instant::now();
-                let used = self.tie_fix(fix, r.pose, alt);
-                self.fixes.push(FixRecord {
+            if self.config.faults.in_outage(timestamp) {
+                self.timing.skipped_outage += 1;
+            } else {
+                let map = self.slam.map();
+                let submitted = Submitted {
                     frame: index,
                     timestamp,
-                    position: fix.position,
-                    confidence: fix.confidence,
-                    ssim: fix.ssim,
-                    match_score: fix.match_score,
-                    tile: fix.tile,
-                    inliers: fix.inliers,
-                    used,
-                    inlier: false,
-                    ms: fix.ms,
-                });
-                if used {
-                    self.refit();
+                    altitude: alt,
+                    pose: r.pose,
+                    keyframe: map.last_keyframe().map(|kf| (kf.id, kf.pose.0)),
+                };
+                let prior = self.prior();
+                match &mut self.absolute {
+                    Absolute::Inline(loc) => {
+                        let outcome = loc.localize(image, alt, &prior)?;
+                        self.apply(&submitted, &outcome);
+                        absolute.push((index, outcome));
+                    }
+                    Absolute::Thread(worker) => {
+                        if worker.try_submit(index, image, alt, prior) {
+                            self.pending.insert(index, submitted);
+                        } else {
+                            self.timing.skipped_busy += 1;
+                        }
+                    }
                 }
-                self.timing
-                    .alignment_ms
-                    .push(t0.elapsed().as_secs_f64() * 1e3);
             }
-            absolute = Some(outcome);
+        }
+        while let Some((frame, outcome)) = self.next_finished(false)? {
+            absolute.push((frame, outcome));
         }
         let world_pose = match (&self.alignment, r.pose) {
             (Some(a), Some(p)) => Some(a.sim3.transform_pose(&p)),
@@ -203,6 +257,70 @@ impl JointLoc {
         })
     }
 
+    /// The next search result of the thread (waiting for it when `wait`), applied.
+    fn next_finished(&mut self, wait: bool) -> Result<Option<(usize, Outcome)>> {
+        let Absolute::Thread(worker) = &mut self.absolute else {
+            return Ok(None);
+        };
+        let next = if wait {
+            worker.wait()?
+        } else {
+            worker.try_next()?
+        };
+        let Some((frame, outcome)) = next else {
+            return Ok(None);
+        };
+        let outcome = outcome?;
+        if let Some(submitted) = self.pending.remove(&frame) {
+            self.apply(&submitted, &outcome);
+        }
+        Ok(Some((frame, outcome)))
+    }
+
+    /// Waits for the absolute search in flight (threaded mode) and applies it; for tests and
+    /// for a caller that wants every requested fix in the final alignment.
+    pub fn flush(&mut self) -> Result<()> {
+        while self.next_finished(true)?.is_some() {}
+        Ok(())
+    }
+
+    /// Records an absolute-localisation outcome and, for a usable fix, ties it to the
+    /// keyframe of its frame and re-fits the alignment.
+    fn apply(&mut self, submitted: &Submitted, outcome: &Outcome) {
+        self.timing.absolute_ms.push(outcome.ms());
+        let Outcome::Fix(fix) = outcome else {
+            return;
+        };
+        let t0 = Instant::now();
+        let mut fix = fix.clone();
+        let offset = self.config.faults.wrong_offset(submitted.frame);
+        if let Some([dx, dy]) = offset {
+            fix.position[0] += dx;
+            fix.position[1] += dy;
+        }
+        let used = self.tie_fix(&fix, submitted);
+        self.fixes.push(FixRecord {
+            frame: submitted.frame,
+            timestamp: submitted.timestamp,
+            position: fix.position,
+            confidence: fix.confidence,
+            ssim: fix.ssim,
+            match_score: fix.match_score,
+            tile: fix.tile,
+            inliers: fix.inliers,
+            used,
+            inlier: false,
+            injected: offset.is_some(),
+            ms: fix.ms,
+        });
+        if used {
+            self.refit();
+        }
+        self.timing
+            .alignment_ms
+            .push(t0.elapsed().as_secs_f64() * 1e3);
+    }
+
     /// The search prior from the fused pose: position and heading of the last world pose.
     fn prior(&self) -> Prior {
         match &self.last_world_pose {
@@ -214,19 +332,19 @@ impl JointLoc {
         }
     }
 
-    /// Ties a fix to the latest keyframe; false when it cannot be used.
-    fn tie_fix(
-        &mut self,
-        fix: &jointloc_absloc::Fix,
-        pose: Option<CameraToWorld>,
-        altitude: f64,
-    ) -> bool {
+    /// Ties a fix to the keyframe that was current at its frame; false when it cannot be used
+    /// (low confidence, frame not tracked, or that keyframe culled since).
+    fn tie_fix(&mut self, fix: &jointloc_absloc::Fix, at: &Submitted) -> bool {
         if fix.confidence < self.config.min_confidence {
             return false;
         }
-        let (Some(pose), Some(kf)) = (pose, self.slam.map().last_keyframe()) else {
+        let (Some(pose), Some((kf_id, t_cw))) = (at.pose, at.keyframe) else {
             return false;
         };
+        if self.slam.map().keyframe(kf_id).is_none() {
+            return false;
+        }
+        let altitude = at.altitude;
         // SLAM units per metre: the current alignment's inverse scale, else 1 (the SLAM map is
         // metric from the altimeter at initialisation).
         let per_metre = self.alignment.as_ref().map_or(1.0, |a| 1.0 / a.sim3.scale);
@@ -234,11 +352,10 @@ impl JointLoc {
         let ground = pose
             .0
             .transform_point(&Point3::new(0.0, 0.0, altitude * per_metre));
-        let t_cw = kf.pose.0;
         let [x, y, z] = fix.position;
         self.ties.push(Tie {
             record: self.fixes.len(),
-            keyframe: kf.id,
+            keyframe: kf_id,
             centre_in_kf: t_cw.transform_point(&centre),
             ground_in_kf: t_cw.transform_point(&ground),
             world_camera: Point3::new(x, y, z),

@@ -1,0 +1,143 @@
+//! Fault injection for the robustness evaluation (issue #7): absolute fixes replaced by wrong
+//! positions, and an outage during which the absolute localisation is not run. Off by
+//! default; every draw is a pure function of the seed and the frame index, so runs repeat.
+
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use serde::{Deserialize, Serialize};
+
+use crate::error::{JointLocError, Result};
+
+/// What to inject.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct FaultConfig {
+    /// Fraction of fixes whose position is replaced by a wrong one (0: none). The confidence
+    /// is kept, so wrong fixes look like real ones.
+    pub wrong_fix_fraction: f64,
+    /// Horizontal offset of a wrong fix, metres: uniform in [min, max], direction uniform.
+    pub wrong_fix_min_m: f64,
+    pub wrong_fix_max_m: f64,
+    /// No absolute localisation for timestamps in [start, start + duration) seconds.
+    pub outage_start_s: Option<f64>,
+    pub outage_duration_s: f64,
+    pub seed: u64,
+}
+
+impl Default for FaultConfig {
+    fn default() -> Self {
+        Self {
+            wrong_fix_fraction: 0.0,
+            wrong_fix_min_m: 10.0,
+            wrong_fix_max_m: 50.0,
+            outage_start_s: None,
+            outage_duration_s: 30.0,
+            seed: 0,
+        }
+    }
+}
+
+impl FaultConfig {
+    pub fn validate(&self) -> Result<()> {
+        let bad = |field, value: f64, reason| {
+            Err(JointLocError::InvalidConfig {
+                field,
+                value: value.to_string(),
+                reason,
+            })
+        };
+        if !(0.0..=1.0).contains(&self.wrong_fix_fraction) {
+            return bad(
+                "faults.wrong_fix_fraction",
+                self.wrong_fix_fraction,
+                "must be in [0, 1]",
+            );
+        }
+        if !(self.wrong_fix_min_m >= 0.0 && self.wrong_fix_max_m >= self.wrong_fix_min_m) {
+            return bad(
+                "faults.wrong_fix_max_m",
+                self.wrong_fix_max_m,
+                "needs 0 <= wrong_fix_min_m <= wrong_fix_max_m",
+            );
+        }
+        if !(self.outage_duration_s.is_finite() && self.outage_duration_s >= 0.0) {
+            return bad(
+                "faults.outage_duration_s",
+                self.outage_duration_s,
+                "must be finite and >= 0",
+            );
+        }
+        if let Some(s) = self.outage_start_s.filter(|s| !s.is_finite()) {
+            return bad("faults.outage_start_s", s, "must be finite");
+        }
+        Ok(())
+    }
+
+    /// Whether the absolute localisation is out at `timestamp`.
+    pub fn in_outage(&self, timestamp: f64) -> bool {
+        self.outage_start_s
+            .is_some_and(|s| timestamp >= s && timestamp < s + self.outage_duration_s)
+    }
+
+    /// The horizontal offset to add to the fix of `frame`, if it is to be wrong.
+    pub fn wrong_offset(&self, frame: usize) -> Option<[f64; 2]> {
+        if self.wrong_fix_fraction <= 0.0 {
+            return None;
+        }
+        let mut rng = ChaCha8Rng::seed_from_u64(
+            self.seed ^ (frame as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15),
+        );
+        if rng.random::<f64>() >= self.wrong_fix_fraction {
+            return None;
+        }
+        let d = if self.wrong_fix_max_m > self.wrong_fix_min_m {
+            rng.random_range(self.wrong_fix_min_m..self.wrong_fix_max_m)
+        } else {
+            self.wrong_fix_min_m
+        };
+        let a = rng.random_range(0.0..std::f64::consts::TAU);
+        Some([d * a.cos(), d * a.sin()])
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn wrong_fixes_have_the_requested_rate_and_distance() {
+        for seed in [1, 2, 3] {
+            let f = FaultConfig {
+                wrong_fix_fraction: 0.2,
+                seed,
+                ..Default::default()
+            };
+            let offsets: Vec<[f64; 2]> = (0..2000).filter_map(|i| f.wrong_offset(i)).collect();
+            let rate = offsets.len() as f64 / 2000.0;
+            assert!((rate - 0.2).abs() < 0.03, "seed {seed}: rate {rate}");
+            for o in &offsets {
+                let d = o[0].hypot(o[1]);
+                assert!((10.0..=50.0).contains(&d), "{d}");
+            }
+            // Repeatable per frame.
+            assert_eq!(f.wrong_offset(17), f.wrong_offset(17));
+        }
+        assert_eq!(FaultConfig::default().wrong_offset(3), None);
+    }
+
+    #[test]
+    fn outage_covers_its_window_only() {
+        let f = FaultConfig {
+            outage_start_s: Some(40.0),
+            ..Default::default()
+        };
+        assert!(!f.in_outage(39.99) && f.in_outage(40.0) && f.in_outage(69.9));
+        assert!(!f.in_outage(70.0));
+        assert!(!FaultConfig::default().in_outage(50.0));
+        let bad = FaultConfig {
+            wrong_fix_fraction: 1.5,
+            ..Default::default()
+        };
+        assert!(bad.validate().is_err());
+    }
+}

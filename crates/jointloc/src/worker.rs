@@ -1,0 +1,139 @@
+//! The absolute-localisation thread of the real-time mode (paper §III-A: absolute and relative
+//! localisation run in parallel). Requests go through a channel of capacity one: when the
+//! thread is still busy with the previous frame, the new request is refused and the frame is
+//! simply not localised (the only frames the real-time mode may skip); tracking never waits.
+
+use std::sync::mpsc::{Receiver, SyncSender, TryRecvError, TrySendError, sync_channel};
+use std::thread::JoinHandle;
+
+use image::GrayImage;
+use jointloc_absloc::{AbsLocalizer, Outcome, Prior};
+
+use crate::error::{JointLocError, Result};
+
+struct Request {
+    frame: usize,
+    image: GrayImage,
+    altitude: f64,
+    prior: Prior,
+}
+
+/// A finished search: the frame it was for and its outcome.
+pub(crate) type Finished = (
+    usize,
+    std::result::Result<Outcome, jointloc_absloc::AbslocError>,
+);
+
+/// The thread and its two channels.
+pub(crate) struct AbsoluteWorker {
+    requests: Option<SyncSender<Request>>,
+    results: Receiver<Finished>,
+    handle: Option<JoinHandle<()>>,
+    busy: bool,
+}
+
+impl std::fmt::Debug for AbsoluteWorker {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("AbsoluteWorker")
+            .field("busy", &self.busy)
+            .finish()
+    }
+}
+
+impl AbsoluteWorker {
+    pub(crate) fn spawn(mut localizer: AbsLocalizer) -> Result<Self> {
+        let (req_tx, req_rx) = sync_channel::<Request>(1);
+        let (res_tx, res_rx) = sync_channel::<Finished>(4);
+        let handle = std::thread::Builder::new()
+            .name("jointloc-absolute".into())
+            .spawn(move || {
+                while let Ok(r) = req_rx.recv() {
+                    let out = localizer.localize(&r.image, r.altitude, &r.prior);
+                    if res_tx.send((r.frame, out)).is_err() {
+                        break;
+                    }
+                }
+            })
+            .map_err(|e| JointLocError::Thread {
+                message: e.to_string(),
+            })?;
+        Ok(Self {
+            requests: Some(req_tx),
+            results: res_rx,
+            handle: Some(handle),
+            busy: false,
+        })
+    }
+
+    /// Hands a frame to the thread if it is idle; false (frame skipped) when it is busy.
+    pub(crate) fn try_submit(
+        &mut self,
+        frame: usize,
+        image: &GrayImage,
+        altitude: f64,
+        prior: Prior,
+    ) -> bool {
+        if self.busy {
+            return false;
+        }
+        let Some(tx) = &self.requests else {
+            return false;
+        };
+        let request = Request {
+            frame,
+            image: image.clone(),
+            altitude,
+            prior,
+        };
+        // At most one request is ever outstanding (`busy`), so the slot is free.
+        match tx.try_send(request) {
+            Ok(()) => {
+                self.busy = true;
+                true
+            }
+            Err(TrySendError::Full(_)) | Err(TrySendError::Disconnected(_)) => false,
+        }
+    }
+
+    /// The next finished search, if one is ready; an error when the thread died.
+    pub(crate) fn try_next(&mut self) -> Result<Option<Finished>> {
+        match self.results.try_recv() {
+            Ok(f) => {
+                self.busy = false;
+                Ok(Some(f))
+            }
+            Err(TryRecvError::Empty) => Ok(None),
+            Err(TryRecvError::Disconnected) => Err(JointLocError::Thread {
+                message: "the absolute-localisation thread stopped".into(),
+            }),
+        }
+    }
+
+    /// Waits for the search in flight, if any.
+    pub(crate) fn wait(&mut self) -> Result<Option<Finished>> {
+        if !self.busy {
+            return Ok(None);
+        }
+        match self.results.recv() {
+            Ok(f) => {
+                self.busy = false;
+                Ok(Some(f))
+            }
+            Err(_) => Err(JointLocError::Thread {
+                message: "the absolute-localisation thread stopped".into(),
+            }),
+        }
+    }
+}
+
+impl Drop for AbsoluteWorker {
+    fn drop(&mut self) {
+        // Closing the request channel ends the thread's loop; drain a pending result so its
+        // send cannot block, then join.
+        self.requests = None;
+        while self.results.try_recv().is_ok() {}
+        if let Some(h) = self.handle.take() {
+            let _ = h.join();
+        }
+    }
+}
