@@ -379,7 +379,11 @@ impl JointLoc {
             }
         }
         let mut pairs = Vec::with_capacity(2 * self.ties.len());
-        for (i, t) in self.ties.iter().enumerate() {
+        let first = match self.config.alignment_window {
+            0 => 0,
+            w => self.ties.len().saturating_sub(w),
+        };
+        for (i, t) in self.ties.iter().enumerate().skip(first) {
             // The ground point carries the fix's x, y exactly (the map point under the image
             // centre); the camera centre adds the altimeter's z with a lower weight (its x, y
             // assume a nadir view).
@@ -445,6 +449,8 @@ impl JointLoc {
     }
 
     /// The world-frame keyframe trajectory under the current alignment (empty before it).
+    /// With a sliding alignment window the latest alignment is fitted to the recent fixes, so
+    /// early keyframes are only as good as the SLAM's drift since then.
     pub fn keyframe_trajectory(&self) -> Result<Option<jointloc_geometry::trajectory::Trajectory>> {
         let Some(a) = &self.alignment else {
             return Ok(None);
