@@ -54,6 +54,11 @@ pub struct AbsLocConfig {
     /// central 60 % (see [`crate::search`]); candidates are tried nearest to the last fix (or
     /// the prior) first. `None` matches every candidate, as the paper does.
     pub early_stop_inliers: Option<usize>,
+    /// Smallest frame-to-map scale matched at. A map so coarse that the frame shrunk to its
+    /// GSD would be smaller than this fraction of its size (medium preset: 12.5 cm/px under
+    /// 2 cm/px frames, 0.16) is upsampled once, at the first frame's altitude, so that the
+    /// scale becomes this; 80-pixel frames give a learned detector almost nothing.
+    pub min_match_scale: f64,
     /// Tile feature cache on disk (see [`crate::cache`]).
     pub cache: bool,
     /// Cache folder; default `<map folder>/jointloc-cache`.
@@ -78,6 +83,7 @@ impl Default for AbsLocConfig {
             min_texture_std: 2.0,
             parallel: true,
             early_stop_inliers: Some(40),
+            min_match_scale: 0.4,
             cache: true,
             cache_dir: None,
             accept: AcceptConfig::default(),
@@ -95,6 +101,13 @@ impl AbsLocConfig {
             value,
             reason: reason.into(),
         };
+        if !(self.min_match_scale.is_finite() && self.min_match_scale > 0.0) {
+            return Err(bad(
+                "min_match_scale",
+                self.min_match_scale.to_string(),
+                "must be > 0",
+            ));
+        }
         if self.rotation_hypotheses == 0 {
             return Err(bad("rotation_hypotheses", "0".into(), "must be ≥ 1"));
         }
@@ -263,6 +276,9 @@ pub struct AbsLocalizer {
     tile_features: Vec<jointloc_features::Features>,
     cache_status: CacheStatus,
     state: SearchState,
+    /// Map upsampling chosen at the first frame (1: none), see
+    /// [`AbsLocConfig::min_match_scale`].
+    upsample: Option<f64>,
 }
 
 impl AbsLocalizer {
@@ -283,18 +299,7 @@ impl AbsLocalizer {
                 reason: "focal lengths must be finite and > 0".into(),
             });
         }
-        let key = cache::cache_key(&tiles, &pipeline.detector_key);
-        let path = config
-            .cache
-            .then(|| cache::cache_path(&tiles, config.cache_dir.as_deref(), &pipeline.detector_id));
-        let loaded =
-            cache::load_or_build(&tiles, pipeline.detector.as_ref(), &key, path.as_deref())?;
-        tracing::info!(
-            tiles = tiles.len(),
-            status = ?loaded.status,
-            matcher = %pipeline.name,
-            "tile features ready"
-        );
+        let loaded = tile_features(&tiles, &pipeline, &config, &pipeline.detector_id)?;
         Ok(Self {
             tiles,
             camera,
@@ -306,7 +311,46 @@ impl AbsLocalizer {
                 radius: RADIUS_RANGE.1,
                 ..Default::default()
             },
+            upsample: None,
         })
+    }
+
+    /// Upsamples the map once, at the first frame, when it is too coarse for the frames at
+    /// this altitude (see [`AbsLocConfig::min_match_scale`]).
+    fn adapt_map_scale(&mut self, altitude: f64) -> Result<()> {
+        if self.upsample.is_some() {
+            return Ok(());
+        }
+        let factor = self.config.min_match_scale / self.expected_scale(altitude);
+        // Quarter steps; below 1.5 the frame is big enough as it is.
+        let factor = (factor * 4.0).round() / 4.0;
+        if factor < 1.5 {
+            self.upsample = Some(1.0);
+            return Ok(());
+        }
+        let t = Instant::now();
+        // The paper's tiling: frame-size tiles overlapping by half.
+        let tiles = self.tiles.upsampled(factor, 0.5)?;
+        let id = format!("{}-up{factor:.2}", self.pipeline.detector_id);
+        let loaded = tile_features(&tiles, &self.pipeline, &self.config, &id)?;
+        tracing::info!(
+            factor,
+            gsd_m = tiles.gsd_m(),
+            tiles = tiles.len(),
+            seconds = t.elapsed().as_secs_f64(),
+            "coarse map upsampled for matching"
+        );
+        self.tiles = tiles;
+        self.tile_features = loaded.features;
+        self.cache_status = loaded.status;
+        self.upsample = Some(factor);
+        self.reset();
+        Ok(())
+    }
+
+    /// The map upsampling in use (1: none; `None` before the first frame).
+    pub fn upsample_factor(&self) -> Option<f64> {
+        self.upsample
     }
 
     /// The map.
@@ -356,6 +400,7 @@ impl AbsLocalizer {
         if !(altitude.is_finite() && altitude > 0.0) {
             return Err(AbslocError::InvalidAltitude { value: altitude });
         }
+        self.adapt_map_scale(altitude)?;
         let std = grey_std(frame);
         if std < self.config.min_texture_std {
             tracing::debug!(std, "frame without texture: no fix");
@@ -646,4 +691,25 @@ fn grey_std(img: &GrayImage) -> f64 {
 fn angle_eq(a: f64, b: f64) -> bool {
     let d = (a - b).rem_euclid(std::f64::consts::TAU);
     d < 1e-9 || std::f64::consts::TAU - d < 1e-9
+}
+
+/// Tile features of `tiles` from the cache (`id` names the cache file) or extracted.
+fn tile_features(
+    tiles: &MapTiles,
+    pipeline: &FeaturePipeline,
+    config: &AbsLocConfig,
+    id: &str,
+) -> Result<cache::TileFeatures> {
+    let key = cache::cache_key(tiles, &pipeline.detector_key);
+    let path = config
+        .cache
+        .then(|| cache::cache_path(tiles, config.cache_dir.as_deref(), id));
+    let loaded = cache::load_or_build(tiles, pipeline.detector.as_ref(), &key, path.as_deref())?;
+    tracing::info!(
+        tiles = tiles.len(),
+        status = ?loaded.status,
+        matcher = %pipeline.name,
+        "tile features ready"
+    );
+    Ok(loaded)
 }

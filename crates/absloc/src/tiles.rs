@@ -267,6 +267,48 @@ impl MapTiles {
         })
     }
 
+    /// The map resampled `factor` times finer (bilinear, `factor` ≥ 1) and re-tiled with
+    /// frame-size tiles at `overlap`: for maps much coarser than the frames, where the frame
+    /// shrunk to the map's GSD would be too small to match. Pixel `u'` of the result is pixel
+    /// `u'/factor` of this map, so the georeference stays exact (GSD / factor, same origin).
+    pub fn upsampled(&self, factor: f64, overlap: f64) -> Result<Self> {
+        if !(factor.is_finite() && factor >= 1.0) {
+            return Err(AbslocError::InvalidConfig {
+                field: "upsample factor",
+                value: factor.to_string(),
+                reason: "must be finite and >= 1".into(),
+            });
+        }
+        let (w, h) = self.map.dimensions();
+        let nw = ((w - 1) as f64 * factor).floor() as u32 + 1;
+        let nh = ((h - 1) as f64 * factor).floor() as u32 + 1;
+        let src = &self.map;
+        let sample = |x: f64, y: f64| -> u8 {
+            let (x0, y0) = (x.floor() as u32, y.floor() as u32);
+            let (x1, y1) = ((x0 + 1).min(w - 1), (y0 + 1).min(h - 1));
+            let (fx, fy) = (x - x0 as f64, y - y0 as f64);
+            let p = |a: u32, b: u32| src.get_pixel(a, b).0[0] as f64;
+            let top = p(x0, y0) * (1.0 - fx) + p(x1, y0) * fx;
+            let bottom = p(x0, y1) * (1.0 - fx) + p(x1, y1) * fx;
+            (top * (1.0 - fy) + bottom * fy).round().clamp(0.0, 255.0) as u8
+        };
+        let map = GrayImage::from_fn(nw, nh, |u, v| {
+            image::Luma([sample(
+                (u as f64 / factor).min((w - 1) as f64),
+                (v as f64 / factor).min((h - 1) as f64),
+            )])
+        });
+        let mut out = Self::from_image(
+            map,
+            self.gsd_m / factor,
+            (self.tile_width, self.tile_height),
+            overlap,
+            &self.root,
+        )?;
+        out.elevation = self.elevation.clone();
+        Ok(out)
+    }
+
     /// Terrain height at world `(x, y)` from the map's elevation model; 0 (flat ground at the
     /// datum, DESIGN §3) when the map has none.
     pub fn ground_height(&self, x: f64, y: f64) -> f64 {
@@ -468,6 +510,30 @@ fn fingerprint(map: &GrayImage, gsd: f64, tiles: &[MapTile], tile: (u32, u32)) -
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn upsampling_keeps_the_georeference() {
+        let mut img = GrayImage::new(1000, 750);
+        for (u, v, p) in img.enumerate_pixels_mut() {
+            p.0[0] = ((u * 7 + v * 3) % 251) as u8;
+        }
+        let tiles = MapTiles::from_image(img, 0.125, (500, 500), 0.5, Path::new(".")).unwrap();
+        let up = tiles.upsampled(2.5, 0.5).unwrap();
+        assert!((up.gsd_m() - 0.05).abs() < 1e-12);
+        assert_eq!(up.map().dimensions(), (2498, 1873));
+        // The same world point has the same grey level (bilinear, on integer source pixels).
+        for (u, v) in [(0u32, 0u32), (10, 20), (998, 748), (400, 300)] {
+            let (x, y) = tiles.pixel_to_world(u as f64, v as f64);
+            let (u2, v2) = up.world_to_pixel(x, y);
+            assert!((u2 - u2.round()).abs() < 1e-9 && (v2 - v2.round()).abs() < 1e-9);
+            assert_eq!(
+                up.map().get_pixel(u2.round() as u32, v2.round() as u32),
+                tiles.map().get_pixel(u, v)
+            );
+        }
+        assert!(up.len() > tiles.len());
+        assert!(tiles.upsampled(0.5, 0.5).is_err());
+    }
 
     fn grid_map(w: u32, h: u32) -> MapTiles {
         let img = GrayImage::from_fn(w, h, |x, y| image::Luma([((x * 7 + y * 13) % 251) as u8]));

@@ -4,7 +4,7 @@
 
 mod common;
 
-use common::sim_dataset;
+use common::{sim_dataset, sim_dataset_medium};
 use jointloc_absloc::dataset::UavDataset;
 use jointloc_absloc::ground_truth::plane_homography;
 use jointloc_absloc::registry::{RegistryOptions, resolve};
@@ -60,9 +60,14 @@ fn georeference_agrees_with_the_ground_truth() {
     }
 }
 
-/// Localises every frame with `matcher`; returns the 2-D errors.
+/// Localises every frame of the easy dataset with `matcher`; returns the 2-D errors.
 fn run(matcher: &str) -> Vec<f64> {
-    let dir = sim_dataset();
+    run_on(sim_dataset(), matcher, 1.0)
+}
+
+/// Localises every frame of `dir` with `matcher`, checking the map upsampling chosen; returns
+/// the 2-D errors.
+fn run_on(dir: &std::path::Path, matcher: &str, upsample: f64) -> Vec<f64> {
     let opts = RegistryOptions {
         models_dir: (matcher != "orb").then(|| {
             jointloc_features::models::ready_store()
@@ -82,7 +87,8 @@ fn run(matcher: &str) -> Vec<f64> {
         ..Default::default()
     };
     let mut loc = AbsLocalizer::new(tiles, ds.camera, pipeline, config).unwrap();
-    ds.frames
+    let errors = ds
+        .frames
         .iter()
         .map(|f| {
             let img = image::open(&f.path).unwrap().into_luma8();
@@ -103,7 +109,9 @@ fn run(matcher: &str) -> Vec<f64> {
             );
             ((fix.position[0] - c.x).powi(2) + (fix.position[1] - c.y).powi(2)).sqrt()
         })
-        .collect()
+        .collect();
+    assert_eq!(loc.upsample_factor(), Some(upsample), "{matcher}");
+    errors
 }
 
 fn check(matcher: &str, errors: &[f64]) {
@@ -123,4 +131,14 @@ fn orb_localises_every_frame() {
 #[test]
 fn xfeat_mnn_localises_every_frame() {
     check("xfeat-mnn", &run("xfeat-mnn"));
+}
+
+/// A map 6 times coarser than the frames: the localiser upsamples it 2.5 times and still finds
+/// every frame.
+#[test]
+fn xfeat_lighterglue_localises_every_frame_on_a_coarse_map() {
+    check(
+        "xfeat-lighterglue (medium)",
+        &run_on(sim_dataset_medium(), "xfeat-lighterglue", 2.5),
+    );
 }

@@ -74,3 +74,22 @@ pub fn sim_dataset() -> &'static Path {
     })
     .path()
 }
+
+/// The same flight over a medium-difficulty map (12.5 cm/px, 2.5 times coarser than the easy
+/// one, other sun), generated once per test binary.
+pub fn sim_dataset_medium() -> &'static Path {
+    static DIR: OnceLock<tempfile::TempDir> = OnceLock::new();
+    DIR.get_or_init(|| {
+        let dir = tempfile::tempdir().unwrap();
+        let mut cfg = SimConfig {
+            seed: 20261123,
+            difficulty: jointloc_sim::Difficulty::Medium,
+            ..Default::default()
+        };
+        cfg.trajectory.length_m = 8.0;
+        cfg.trajectory.rate_hz = 1.0;
+        generate_dataset(&cfg, dir.path(), &mut |_, _, _| {}).unwrap();
+        dir
+    })
+    .path()
+}
