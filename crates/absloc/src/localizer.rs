@@ -321,10 +321,9 @@ impl AbsLocalizer {
         if self.upsample.is_some() {
             return Ok(());
         }
-        let factor = self.config.min_match_scale / self.expected_scale(altitude);
-        // Quarter steps; below 1.5 the frame is big enough as it is.
-        let factor = (factor * 4.0).round() / 4.0;
-        if factor < 1.5 {
+        let factor =
+            map_upsample_factor(self.expected_scale(altitude), self.config.min_match_scale);
+        if factor == 1.0 {
             self.upsample = Some(1.0);
             return Ok(());
         }
@@ -712,4 +711,15 @@ fn tile_features(
         "tile features ready"
     );
     Ok(loaded)
+}
+
+/// How much to upsample a map whose frame-to-map scale is `expected` so that it becomes
+/// `min_match_scale`: quarter steps, and 1 (none) below 1.5, where the frame is big enough.
+pub fn map_upsample_factor(expected: f64, min_match_scale: f64) -> f64 {
+    let factor = ((min_match_scale / expected) * 4.0).round() / 4.0;
+    if factor.is_finite() && factor >= 1.5 {
+        factor
+    } else {
+        1.0
+    }
 }

@@ -202,7 +202,8 @@ pub fn summarise(matcher: &str, results: Vec<PairResult>) -> MatchReport {
 /// possible): each frame against the tile nearest to its true centre point, with the
 /// homography from ground truth (`terrain` heights when given, else the altimeter plane).
 /// `normalise` resamples the query to map scale (altimeter) and north-up (true heading), as the
-/// localiser does with a fused heading.
+/// localiser does with a fused heading, after upsampling a coarse map as the localiser does
+/// ([`crate::localizer::map_upsample_factor`]).
 pub fn pairs_from_dataset(
     dir: &Path,
     n: usize,
@@ -211,8 +212,26 @@ pub fn pairs_from_dataset(
     normalise: bool,
 ) -> Result<(Vec<MatchPair>, GroundTruthSource)> {
     let ds = UavDataset::open(dir)?;
-    let tiles = MapTiles::open(dir)?;
+    let mut tiles = MapTiles::open(dir)?;
     tiles.check_frame_size(ds.camera.width, ds.camera.height)?;
+    if normalise {
+        // As the localiser: a map too coarse for the frames is upsampled first (at the first
+        // frame's altitude), so pixel errors are in the upsampled map's pixels.
+        let focal = 0.5 * (ds.camera.fx + ds.camera.fy);
+        if let Some(alt) = ds
+            .frames
+            .iter()
+            .find_map(|f| f.altitude.filter(|a| a.is_finite() && *a > 0.0))
+        {
+            let factor = crate::localizer::map_upsample_factor(
+                alt / (focal * tiles.gsd_m()),
+                crate::AbsLocConfig::default().min_match_scale,
+            );
+            if factor > 1.0 {
+                tiles = tiles.upsampled(factor, 0.5)?;
+            }
+        }
+    }
     let usable: Vec<usize> = (0..ds.frames.len())
         .filter(|&i| ds.frames[i].ground_truth.is_some())
         .collect();

@@ -142,3 +142,12 @@ fn xfeat_lighterglue_localises_every_frame_on_a_coarse_map() {
         &run_on(sim_dataset_medium(), "xfeat-lighterglue", 2.5),
     );
 }
+
+/// The matcher benchmark's exact ground truth: the terrain is regenerated from `sim.toml`
+/// (the map carries an elevation model, which planning does not write).
+#[test]
+fn terrain_is_regenerated_for_the_ground_truth() {
+    let dir = sim_dataset();
+    let ds = UavDataset::open(dir).unwrap();
+    assert!(jointloc_absloc::sim_terrain::regenerate(dir, &ds).is_some());
+}
