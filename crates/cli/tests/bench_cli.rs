@@ -46,6 +46,7 @@ fn writes_the_report_and_refuses_to_replace_it() {
         "| crater | easy | orb |",
         "## 2. Visual localisation (paper Table VI)",
         "| crater | easy | JointLoc (orb) |",
+        "| crater | easy | JointLoc threaded (orb) | 1 |",
         "| crater | easy | VO only (Sim(3)-aligned) | 1 |",
         "| crater | easy | Absolute only (orb, every 5, 2-D) | 1 |",
         "jointloc vo --dataset",

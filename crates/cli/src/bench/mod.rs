@@ -382,10 +382,13 @@ fn jointloc_run(
         dir.display(),
         "--matcher",
         matcher,
-        "--sequential",
         "--force"
     ]
     .to_vec();
+    // Deterministic unless the row is about the real-time mode.
+    if tag != "threaded" {
+        a.push("--sequential".into());
+    }
     a.extend_from_slice(extra);
     let done = runner.run(&format!("run-{}-{tag}", d.name()), &a)?;
     Ok((done, dir))
@@ -453,6 +456,20 @@ fn localisation_rows(
         AlignMode::None,
         false,
         timing,
+    );
+    rep.localisation.push(row);
+    // The same in the real-time mode: absolute localisation on its own thread, frames as fast
+    // as they are tracked (its Hz is the real-time figure; fixes may be skipped).
+    let (done, dir) = jointloc_run(d, out, runner, "threaded", &[], &plan.matcher)?;
+    let timing_t = metrics::timing_medians(&dir.join("timing.json")).ok();
+    let (row, _) = loc_row(
+        d,
+        format!("JointLoc threaded ({})", plan.matcher),
+        &done,
+        &dir.join("trajectory.tum"),
+        AlignMode::None,
+        false,
+        timing_t,
     );
     rep.localisation.push(row);
     // VO only: Sim(3)-aligned, as monocular SLAM is evaluated.
