@@ -1,8 +1,9 @@
 //! Evaluation of a list of (view, tile) candidates: in parallel, in the given order (nearest
 //! to the predicted position first), optionally stopping early once a candidate is decisive.
 //!
-//! Early stop (a speed-up on top of the paper's area prediction): after each batch of
-//! candidates, if one of them is decisive (at least `early_stop_inliers` inliers and the image
+//! Early stop (a speed-up on top of the paper's area prediction): the nearest candidate is
+//! matched alone, then the others in parallel batches; after each batch, if one of them is
+//! decisive (at least `early_stop_inliers` inliers and the image
 //! centre mapped into the central 60 % of its own tile, so the frame lies well inside that
 //! tile), the remaining, farther candidates are skipped; the most inliers among those matched
 //! still win. Without it every candidate is matched, exactly as the paper.
@@ -48,7 +49,18 @@ pub(crate) fn run(
         (Some(_), true) => rayon::current_num_threads().max(1),
         (Some(_), false) => 1,
     };
-    for chunk in jobs.chunks(batch) {
+    // The nearest candidate alone first: with a good prediction it is decisive, and matching a
+    // second one beside it would only take the core from the tracking thread.
+    let first = if input.early_stop_inliers.is_some() {
+        1.min(jobs.len())
+    } else {
+        0
+    };
+    let (head, tail) = jobs.split_at(first);
+    for chunk in std::iter::once(head)
+        .filter(|h| !h.is_empty())
+        .chain(tail.chunks(batch))
+    {
         let eval = |&(v, t): &(usize, usize)| {
             evaluate(
                 &input.ctx,
