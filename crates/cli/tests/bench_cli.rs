@@ -87,6 +87,7 @@ fn bad_options_are_clear_errors() {
         (vec!["--terrains", "moon"], "unknown terrain"),
         (vec!["--tables", "everything"], "unknown table"),
         (vec!["--seeds", "0"], "--seeds"),
+        (vec!["--abs-every", "0"], "--abs-every"),
         (vec!["--length-m", "5"], "--length-m"),
     ] {
         let mut a = vec!["bench", "--out", out];

@@ -69,6 +69,10 @@ pub struct Args {
     /// Matcher of the JointLoc and absolute-only rows.
     #[arg(long, value_name = "M", default_value = "xfeat-lighterglue")]
     matcher: String,
+    /// Absolute-only rows localise every K-th frame (default 1, every frame as the paper's
+    /// baseline; 5 with --quick).
+    #[arg(long, value_name = "K")]
+    abs_every: Option<usize>,
     /// Image pairs per dataset in the matching table (default 30; 10 with --quick).
     #[arg(long, value_name = "N")]
     pairs: Option<usize>,
@@ -109,6 +113,9 @@ impl Plan {
         if seeds == 0 {
             bail!("--seeds must be at least 1");
         }
+        if a.abs_every == Some(0) {
+            bail!("--abs-every must be at least 1");
+        }
         let difficulties = a.difficulty.clone().unwrap_or_else(|| {
             if a.quick {
                 vec!["easy".into()]
@@ -148,7 +155,7 @@ impl Plan {
             matchers,
             matcher: a.matcher.clone(),
             pairs: a.pairs.unwrap_or(if a.quick { 10 } else { 30 }),
-            abs_every: if a.quick { 5 } else { 1 },
+            abs_every: a.abs_every.unwrap_or(if a.quick { 5 } else { 1 }),
             tables: a.tables.clone(),
         })
     }
