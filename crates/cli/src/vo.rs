@@ -2,6 +2,8 @@
 //! every tracked frame's camera-to-world pose in the SLAM frame (TUM), optionally the keyframe
 //! trajectory and the map points (PLY), and prints a per-module timing summary.
 //!
+//! Existing outputs are refused unless `--force`.
+//!
 //! Lost frames (and frames before the initialisation) have no pose: they are not written, and
 //! the summary lists them.
 
@@ -49,9 +51,23 @@ pub struct Args {
     /// Ignore the altimeter (the scale is then the ORB-SLAM2 median depth of 1).
     #[arg(long)]
     no_altimeter: bool,
+    /// Replace existing outputs (`--out`, `--keyframes`, `--map-points`).
+    #[arg(long)]
+    force: bool,
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
+    // Checked before the (long) run, so a forgotten `--force` costs nothing.
+    let outputs = [
+        Some(&args.out),
+        args.keyframes.as_ref(),
+        args.map_points.as_ref(),
+    ];
+    for p in outputs.into_iter().flatten() {
+        if p.exists() && !args.force {
+            bail!("{}: already exists (use --force to overwrite)", p.display());
+        }
+    }
     let camera = read_camera_yaml(&args.dataset.join("camera.yaml"))?.camera;
     let sequence = Sequence::open(&args.dataset)?;
     let config: SystemConfig = match &args.config {

@@ -105,3 +105,51 @@ fn a_missing_dataset_is_one_clear_error() {
     assert!(e.starts_with("error:") && e.contains("camera.yaml"), "{e}");
     assert!(!out.exists());
 }
+
+#[test]
+fn existing_outputs_are_refused_without_force() {
+    let tmp = tempfile::tempdir().unwrap();
+    let ds = tmp.path().join("ds");
+    let sim = jointloc(&[
+        "sim",
+        "--length-m",
+        "6",
+        "--seed",
+        "32",
+        "--terrain",
+        "gravel",
+        "--out",
+        ds.to_str().unwrap(),
+    ]);
+    assert!(sim.status.success(), "{}", text(&sim.stderr));
+    let out = tmp.path().join("traj.tum");
+    let kf = tmp.path().join("kf.tum");
+    let vo = |extra: &[&str]| {
+        let mut a = vec![
+            "vo",
+            "--dataset",
+            ds.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+            "--keyframes",
+            kf.to_str().unwrap(),
+        ];
+        a.extend_from_slice(extra);
+        jointloc(&a)
+    };
+    // Each output on its own is guarded.
+    for existing in [&out, &kf] {
+        std::fs::write(existing, "keep me").unwrap();
+        let o = vo(&[]);
+        assert!(!o.status.success());
+        let e = text(&o.stderr);
+        assert!(e.contains("--force") && e.contains("already exists"), "{e}");
+        assert_eq!(std::fs::read_to_string(existing).unwrap(), "keep me");
+        std::fs::remove_file(existing).unwrap();
+    }
+    std::fs::write(&out, "keep me").unwrap();
+    let o = vo(&["--force"]);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    assert!(tum_lines(&out) > 10);
+    assert!(tum_lines(&kf) >= 2);
+}
