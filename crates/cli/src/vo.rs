@@ -51,6 +51,10 @@ pub struct Args {
     /// Ignore the altimeter (the scale is then the ORB-SLAM2 median depth of 1).
     #[arg(long)]
     no_altimeter: bool,
+    /// Sliding-window cap on the map's keyframes (overrides the config's `max_keyframes`;
+    /// 0: no cap). Retired keyframes keep their poses in both trajectories.
+    #[arg(long, value_name = "N")]
+    max_keyframes: Option<usize>,
     /// Replace existing outputs (`--out`, `--keyframes`, `--map-points`).
     #[arg(long)]
     force: bool,
@@ -70,7 +74,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     }
     let camera = read_camera_yaml(&args.dataset.join("camera.yaml"))?.camera;
     let sequence = Sequence::open(&args.dataset)?;
-    let config: SystemConfig = match &args.config {
+    let mut config: SystemConfig = match &args.config {
         Some(p) => {
             let text =
                 std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?;
@@ -78,6 +82,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         }
         None => SystemConfig::default(),
     };
+    if let Some(n) = args.max_keyframes {
+        config.max_keyframes = n;
+    }
     if !args.sequential {
         tracing::info!("threaded mode is not implemented; running sequentially");
     }
@@ -116,6 +123,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 frame = i + 1,
                 of = n,
                 keyframes = system.map().n_keyframes(),
+                retired = system.retired_keyframes().len(),
+                points = system.map().n_points(),
+                rss_mb = proc_status_mb("VmRSS:"),
                 "progress"
             );
         }
@@ -151,10 +161,14 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         relocalised.len()
     );
     println!(
-        "map: {} keyframes, {} points",
+        "map: {} keyframes ({} retired by the cap), {} points",
         system.map().n_keyframes(),
+        system.retired_keyframes().len(),
         system.map().n_points()
     );
+    if let Some(mb) = proc_status_mb("VmHWM:") {
+        println!("peak RSS: {mb:.1} MB");
+    }
     let sum = |a: &[f64], b: &[f64]| -> Vec<f64> { a.iter().zip(b).map(|(x, y)| x + y).collect() };
     println!(
         "median ms: ORB extraction {:.1}, tracking {:.1}, ORB + tracking {:.1}, local mapping {:.1} (per keyframe, {} keyframes inserted), local BA {:.1}",
@@ -191,6 +205,20 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     }
     println!("wrote {}", args.out.display());
     Ok(())
+}
+
+/// A memory figure of this process from `/proc/self/status` (`VmRSS:` now, `VmHWM:` peak),
+/// MB; `None` where there is no procfs.
+fn proc_status_mb(key: &str) -> Option<f64> {
+    let s = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = s.lines().find(|l| l.starts_with(key))?;
+    let kb: f64 = line[key.len()..]
+        .trim()
+        .trim_end_matches("kB")
+        .trim()
+        .parse()
+        .ok()?;
+    Some(kb / 1024.0)
 }
 
 /// `3-7, 12` style list of sorted indices.
