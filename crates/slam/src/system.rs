@@ -15,17 +15,37 @@ use crate::cpu_time::{cpu_ms, thread_cpu_ns};
 use crate::error::{Result, SlamError};
 use crate::frame::{Frame, image_entropy};
 use crate::local_mapping::{LocalMapper, LocalMappingConfig};
-use crate::map::{KeyFrameId, Map};
+use crate::map::{KeyFrameId, Map, RetiredKeyFrame};
 use crate::orb::{GrayImageView, OrbConfig, OrbExtractor};
 use crate::tracking::{Tracker, TrackingConfig, TrackingState};
 
 /// Settings of the whole relative-localisation system.
-#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default)]
 pub struct SystemConfig {
     pub orb: OrbConfig,
     pub tracking: TrackingConfig,
     pub local_mapping: LocalMappingConfig,
+    /// Sliding-window cap on the keyframes in the map (0: no cap). Once exceeded, the oldest
+    /// keyframes outside the newest keyframe's local window are retired with the points only
+    /// they observe, so memory stops growing with the flight's length; their poses stay in the
+    /// trajectories. Without loop closure nothing reads old keyframes: tracking, local BA and
+    /// relocalisation (the 30 newest) work on the recent ones. Default 200 (≈ 440 m of a
+    /// straight 10 m-altitude flight, ≈ 45 MB of map); the local window (itself + up to
+    /// `local_mapping.ba.max_window` covisible keyframes) is never retired, so a cap below it
+    /// is exceeded by that window.
+    pub max_keyframes: usize,
+}
+
+impl Default for SystemConfig {
+    fn default() -> Self {
+        Self {
+            orb: OrbConfig::default(),
+            tracking: TrackingConfig::default(),
+            local_mapping: LocalMappingConfig::default(),
+            max_keyframes: 200,
+        }
+    }
 }
 
 /// The result of one frame.
@@ -109,6 +129,9 @@ pub struct System {
     slam_to_world: Option<Sim3>,
     records: Vec<FrameRecord>,
     culled: BTreeMap<KeyFrameId, (KeyFrameId, Isometry3<f64>)>,
+    /// Keyframes retired by the cap, by id.
+    retired: BTreeMap<KeyFrameId, RetiredKeyFrame>,
+    max_keyframes: usize,
     timing: Timing,
     next_index: usize,
     last_timestamp: Option<f64>,
@@ -135,6 +158,8 @@ impl System {
             slam_to_world: None,
             records: Vec::new(),
             culled: BTreeMap::new(),
+            retired: BTreeMap::new(),
+            max_keyframes: config.max_keyframes,
             timing: Timing::default(),
             next_index: 0,
             last_timestamp: None,
@@ -232,6 +257,7 @@ impl System {
             let cpu = &mut self.timing.cpu;
             cpu.local_mapping_ms.extend(report.total_cpu_ms);
             cpu.lba_ms.extend(report.lba_cpu_ms);
+            self.retire_old_keyframes(kf);
             keyframe = Some(kf);
         }
         let t3 = Instant::now();
@@ -263,12 +289,53 @@ impl System {
         })
     }
 
-    /// Current `T_cw` of a keyframe, following culled keyframes to their parents.
+    /// Keyframes retired by the sliding-window cap so far, by id.
+    pub fn retired_keyframes(&self) -> &BTreeMap<KeyFrameId, RetiredKeyFrame> {
+        &self.retired
+    }
+
+    /// Enforces `max_keyframes` after keyframe `newest` was mapped: retires the oldest
+    /// keyframes outside its local window and the tracker's reference keyframe.
+    fn retire_old_keyframes(&mut self, newest: KeyFrameId) {
+        let cap = self.max_keyframes;
+        if cap == 0 || self.map.n_keyframes() <= cap {
+            return;
+        }
+        let mut keep: Vec<KeyFrameId> = self
+            .map
+            .local_window(newest, self.mapper.config.ba.max_window);
+        keep.extend(self.tracker.reference_keyframe());
+        let excess = self.map.n_keyframes() - cap;
+        let old: Vec<KeyFrameId> = self
+            .map
+            .keyframes()
+            .map(|k| k.id)
+            .filter(|id| !keep.contains(id))
+            .take(excess)
+            .collect();
+        for id in old {
+            if let Some(r) = self.map.retire_keyframe(id) {
+                self.retired.insert(id, r);
+            }
+        }
+        tracing::debug!(
+            retired = self.retired.len(),
+            keyframes = self.map.n_keyframes(),
+            points = self.map.n_points(),
+            "keyframe cap"
+        );
+    }
+
+    /// Current `T_cw` of a keyframe, following culled keyframes to their parents; retired
+    /// keyframes keep their pose at retirement.
     fn keyframe_pose(&self, mut id: KeyFrameId) -> Option<WorldToCamera> {
         let mut chain = Isometry3::identity();
         for _ in 0..10_000 {
             if let Some(kf) = self.map.keyframe(id) {
                 return Some(WorldToCamera(chain * kf.pose.0));
+            }
+            if let Some(r) = self.retired.get(&id) {
+                return Some(WorldToCamera(chain * r.pose.0));
             }
             let (parent, rel) = self.culled.get(&id)?;
             chain *= rel;
@@ -292,12 +359,18 @@ impl System {
         Ok(Trajectory::new(stamps, poses)?)
     }
 
-    /// Camera-to-world poses of the keyframes in the map.
+    /// Camera-to-world poses of the keyframes in the map and of those retired by the cap
+    /// (culled keyframes are absent).
     pub fn keyframe_trajectory(&self) -> Result<Trajectory> {
         let mut kfs: Vec<_> = self
             .map
             .keyframes()
             .map(|k| (k.timestamp, k.pose.inverse()))
+            .chain(
+                self.retired
+                    .values()
+                    .map(|r| (r.timestamp, r.pose.inverse())),
+            )
             .collect();
         kfs.sort_by(|a, b| a.0.total_cmp(&b.0));
         let (stamps, poses) = kfs.into_iter().unzip();

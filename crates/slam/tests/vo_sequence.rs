@@ -42,16 +42,21 @@ static CRATER: OnceLock<(tempfile::TempDir, PathBuf)> = OnceLock::new();
 static GRAVEL: OnceLock<(tempfile::TempDir, PathBuf)> = OnceLock::new();
 
 /// Runs the system on the first `n` frames; `before` is called before each frame.
-fn run(
+fn run(dir: &Path, n: usize, before: impl FnMut(usize, &mut System)) -> (System, Vec<FrameResult>) {
+    run_with(dir, n, SystemConfig::default(), before)
+}
+
+fn run_with(
     dir: &Path,
     n: usize,
+    config: SystemConfig,
     mut before: impl FnMut(usize, &mut System),
 ) -> (System, Vec<FrameResult>) {
     let camera = read_camera_yaml(&dir.join("camera.yaml"))
         .expect("camera")
         .camera;
     let seq = Sequence::open(dir).expect("sequence");
-    let mut system = System::new(camera, SystemConfig::default()).expect("system");
+    let mut system = System::new(camera, config).expect("system");
     let mut out = Vec::new();
     for i in 0..n.min(seq.len()) {
         before(i, &mut system);
@@ -99,6 +104,53 @@ fn end_to_end_sim3_ape_below_30cm_and_never_lost() {
     let scale = report.alignment.expect("aligned").scale;
     assert!((scale - 1.0).abs() < 0.15, "alignment scale {scale}");
     assert!(system.map().n_keyframes() >= 5 && system.map().n_points() > 500);
+}
+
+#[test]
+fn the_keyframe_cap_bounds_the_map_and_keeps_every_pose() {
+    let dir = dataset(&CRATER, TerrainKind::Crater, 21, 35.0);
+    let cap = 8;
+    let config = SystemConfig {
+        max_keyframes: cap,
+        ..SystemConfig::default()
+    };
+    let mut most = 0;
+    let (system, results) = run_with(dir, usize::MAX, config, |_, s| {
+        most = most.max(s.map().n_keyframes());
+    });
+    let most = most.max(system.map().n_keyframes());
+    assert!(most <= cap, "{most} keyframes in the map, cap {cap}");
+    let retired = system.retired_keyframes().len();
+    assert!(retired >= 4, "only {retired} keyframes retired");
+    // Retired keyframes' points went where no live keyframe observes them.
+    for p in system.map().points() {
+        assert!(p.n_observations() >= 1);
+        for kf in p.observations().keys() {
+            assert!(
+                system.map().keyframe(*kf).is_some(),
+                "{} sees retired {kf}",
+                p.id
+            );
+        }
+    }
+    let init = first_ok(&results);
+    assert!(results[init..].iter().all(|r| r.state == TrackingState::Ok));
+    // Both trajectories stay complete.
+    let est = system.trajectory().expect("trajectory");
+    assert_eq!(est.len(), results.len() - init);
+    let kfs = system.keyframe_trajectory().expect("keyframes");
+    assert_eq!(kfs.len(), system.map().n_keyframes() + retired);
+    let gt = Trajectory::read_tum(dir.join("uav/gt.txt"), &TumOptions::default()).expect("gt");
+    let cfg = EvalConfig {
+        align: AlignMode::Sim3,
+        ..EvalConfig::default()
+    };
+    let rmse = evaluate(&gt, &est, &cfg)
+        .expect("evaluation")
+        .ape_translation
+        .stats
+        .rmse;
+    assert!(rmse <= 0.3, "Sim(3) APE RMSE {rmse:.3} m with the cap");
 }
 
 #[test]

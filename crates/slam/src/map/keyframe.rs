@@ -19,6 +19,17 @@ pub struct GlobalFix {
     pub weight: f64,
 }
 
+/// What is kept of a keyframe retired by the sliding-window cap: enough for the keyframe and
+/// frame trajectories (a few dozen bytes instead of its features and points).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RetiredKeyFrame {
+    pub id: KeyFrameId,
+    pub frame_index: usize,
+    pub timestamp: f64,
+    /// SLAM-frame pose `T_cw` when it was retired (it is not optimised any more).
+    pub pose: WorldToCamera,
+}
+
 /// A keyframe of the map.
 #[derive(Debug, Clone)]
 pub struct KeyFrame {

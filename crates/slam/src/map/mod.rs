@@ -13,7 +13,7 @@ use std::collections::BTreeMap;
 use nalgebra::Vector3;
 
 pub use ids::{KeyFrameId, MapPointId};
-pub use keyframe::{GlobalFix, KeyFrame};
+pub use keyframe::{GlobalFix, KeyFrame, RetiredKeyFrame};
 pub use map_point::MapPoint;
 
 use crate::orb::{Descriptor, hamming};
@@ -339,7 +339,9 @@ impl Map {
         let kf = self.keyframes.get_mut(&keyframe).expect("present");
         kf.covisibility = edges;
         kf.ordered = ordered(&kf.covisibility);
-        if kf.parent.is_none() && !is_first {
+        // Only a keyframe without children gets a parent here: it has no descendants, so the
+        // tree stays acyclic when a root left by a retired keyframe is reconnected.
+        if kf.parent.is_none() && kf.children.is_empty() && !is_first {
             let parent = kf.ordered[0].0;
             kf.parent = Some(parent);
             if let Some(p) = self.keyframes.get_mut(&parent) {
@@ -351,7 +353,9 @@ impl Map {
     /// Removes a keyframe (keyframe culling): its observations, its covisibility edges, and its
     /// place in the spanning tree, whose children are re-attached to the remaining keyframe
     /// they share most points with among the erased keyframe's parent and already re-attached
-    /// siblings (ORB-SLAM2's `SetBadFlag`). The first keyframe is never erased.
+    /// siblings (ORB-SLAM2's `SetBadFlag`). The first keyframe and spanning-tree roots (the
+    /// children of retired keyframes) are never erased: a culled keyframe is remembered
+    /// relative to its parent.
     pub fn erase_keyframe(&mut self, keyframe: KeyFrameId) -> bool {
         if self.keyframes.keys().next() == Some(&keyframe) {
             return false;
@@ -359,6 +363,9 @@ impl Map {
         let Some(kf) = self.keyframes.get(&keyframe) else {
             return false;
         };
+        if kf.parent.is_none() {
+            return false;
+        }
         let neighbours: Vec<KeyFrameId> = kf.covisibility.keys().copied().collect();
         let observed: Vec<MapPointId> = kf.points.iter().flatten().copied().collect();
         let parent = kf.parent;
@@ -404,6 +411,52 @@ impl Map {
         }
         self.keyframes.remove(&keyframe);
         true
+    }
+
+    /// Removes a keyframe for the sliding-window cap (see `SystemConfig::max_keyframes`):
+    /// unlike culling, its points stay while any other keyframe observes them (only those seen
+    /// by it alone are erased), its covisibility edges go, and its spanning-tree children
+    /// become roots. Returns what the trajectory needs to keep of it.
+    pub fn retire_keyframe(&mut self, keyframe: KeyFrameId) -> Option<RetiredKeyFrame> {
+        let kf = self.keyframes.remove(&keyframe)?;
+        for n in kf.covisibility.keys() {
+            if let Some(o) = self.keyframes.get_mut(n) {
+                o.covisibility.remove(&keyframe);
+                o.ordered = ordered(&o.covisibility);
+            }
+        }
+        for id in kf.points.iter().flatten() {
+            let Some(p) = self.points.get_mut(id) else {
+                continue;
+            };
+            p.observations.remove(&keyframe);
+            match p.observations.keys().next() {
+                None => {
+                    self.points.remove(id);
+                }
+                Some(&first) if p.reference == keyframe => {
+                    p.reference = first;
+                    self.update_normal_and_depth(*id);
+                }
+                Some(_) => {}
+            }
+        }
+        if let Some(parent) = kf.parent
+            && let Some(p) = self.keyframes.get_mut(&parent)
+        {
+            p.children.remove(&keyframe);
+        }
+        for c in &kf.children {
+            if let Some(c) = self.keyframes.get_mut(c) {
+                c.parent = None;
+            }
+        }
+        Some(RetiredKeyFrame {
+            id: keyframe,
+            frame_index: kf.frame_index,
+            timestamp: kf.timestamp,
+            pose: kf.pose,
+        })
     }
 
     fn set_parent(&mut self, child: KeyFrameId, parent: KeyFrameId) {

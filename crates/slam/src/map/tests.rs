@@ -216,3 +216,52 @@ fn invalid_insertions_are_refused() {
         "already observed by this keyframe"
     );
 }
+
+#[test]
+fn retiring_a_keyframe_keeps_shared_points_and_makes_its_children_roots() {
+    let (mut map, [a, b, c]) = three_keyframe_map(40);
+    // A point only a sees goes with it; points a shares with b (and c) stay.
+    let own = map
+        .insert_point(Vector3::new(9.0, 9.0, 10.0), a, 150)
+        .unwrap();
+    let pose_a = map.keyframe(a).unwrap().pose;
+    let r = map.retire_keyframe(a).unwrap();
+    assert_eq!(
+        (r.id, r.frame_index, r.timestamp, r.pose),
+        (a, 0, 0.0, pose_a)
+    );
+    assert!(map.keyframe(a).is_none() && map.retire_keyframe(a).is_none());
+    assert!(map.point(own).is_none());
+    assert_eq!(map.n_points(), 80);
+    for p in map.points() {
+        assert!(!p.observations().contains_key(&a), "{} still sees a", p.id);
+        assert_ne!(p.reference, a);
+        assert!(p.n_observations() >= 1);
+    }
+    // Points 20..40 were seen by a and b only: kept with b's observation.
+    let p = map.keyframe(b).unwrap().points[30].unwrap();
+    assert_eq!(map.point(p).unwrap().n_observations(), 1);
+    assert_eq!(map.point(p).unwrap().reference, b);
+    // Covisibility edges to a are gone; b (a's child) is a root, c keeps its parent b.
+    assert_eq!(map.keyframe(b).unwrap().covisibility_weight(a), 0);
+    assert_eq!(map.keyframe(c).unwrap().covisibility_weight(a), 0);
+    assert_eq!(map.keyframe(b).unwrap().parent(), None);
+    assert_eq!(map.keyframe(c).unwrap().parent(), Some(b));
+    // A root is not culled (its culled pose could not be kept relative to a parent), and
+    // reconnecting does not give it a parent among its own descendants.
+    assert!(!map.erase_keyframe(b));
+    map.update_connections(b);
+    map.update_connections(c);
+    assert_eq!(map.keyframe(b).unwrap().parent(), None);
+    assert_eq!(map.keyframe(c).unwrap().parent(), Some(b));
+    // A keyframe inserted afterwards joins the tree as before.
+    let d = map.insert_keyframe(keyframe(30, 3.0, 200));
+    for i in 40..80 {
+        let p = map.keyframe(c).unwrap().points[i].unwrap();
+        assert!(map.add_observation(p, d, i));
+    }
+    map.update_connections(d);
+    // b and c share those 40 points with d; the tie goes to the lower id.
+    assert_eq!(map.keyframe(d).unwrap().parent(), Some(b));
+    assert!(map.keyframe(b).unwrap().children().contains(&d));
+}
