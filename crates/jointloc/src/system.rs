@@ -13,7 +13,7 @@ use std::time::Instant;
 
 use image::GrayImage;
 use jointloc_absloc::{AbsLocalizer, Outcome, Prior, heading_from_rotation};
-use jointloc_geometry::{CameraToWorld, PinholeCamera};
+use jointloc_geometry::{CameraToWorld, PinholeCamera, Sim3};
 use jointloc_slam::map::{GlobalFix, KeyFrameId};
 use jointloc_slam::orb::GrayImageView;
 use jointloc_slam::system::System;
@@ -125,6 +125,10 @@ pub struct JointLoc {
     fixes: Vec<FixRecord>,
     ties: Vec<Tie>,
     alignment: Option<SlamToWorld>,
+    /// Before the alignment exists: SLAM→world from the first fix alone (scale 1, the SLAM is
+    /// metric from the altimeter; rotation from the fix's heading and a nadir camera), used
+    /// only to predict where to search next, never to report a pose.
+    provisional: Option<Sim3>,
     timing: FusionTiming,
     next_index: usize,
     last_world_pose: Option<CameraToWorld>,
@@ -166,6 +170,7 @@ impl JointLoc {
             fixes: Vec::new(),
             ties: Vec::new(),
             alignment: None,
+            provisional: None,
             timing: FusionTiming::default(),
             next_index: 0,
             last_world_pose: None,
@@ -216,7 +221,7 @@ impl JointLoc {
                     pose: r.pose,
                     keyframe: map.last_keyframe().map(|kf| (kf.id, kf.pose.0)),
                 };
-                let prior = self.prior();
+                let prior = self.prior(r.pose);
                 match &mut self.absolute {
                     Absolute::Inline(loc) => {
                         let outcome = loc.localize(image, alt, &prior)?;
@@ -299,6 +304,19 @@ impl JointLoc {
             fix.position[1] += dy;
         }
         let used = self.tie_fix(&fix, submitted);
+        if used
+            && self.alignment.is_none()
+            && self.provisional.is_none()
+            && let Some(pose) = submitted.pose
+        {
+            let rotation = fix.orientation() * pose.rotation().inverse();
+            let centre = nalgebra::Vector3::from(fix.position);
+            self.provisional = Some(Sim3 {
+                scale: 1.0,
+                rotation,
+                translation: centre - rotation * pose.centre().coords,
+            });
+        }
         self.fixes.push(FixRecord {
             frame: submitted.frame,
             timestamp: submitted.timestamp,
@@ -321,9 +339,15 @@ impl JointLoc {
             .push(t0.elapsed().as_secs_f64() * 1e3);
     }
 
-    /// The search prior from the fused pose: position and heading of the last world pose.
-    fn prior(&self) -> Prior {
-        match &self.last_world_pose {
+    /// The search prior from the fused pose: position and heading of the last world pose;
+    /// before the alignment, the current SLAM pose through the provisional one-fix similarity.
+    fn prior(&self, slam_pose: Option<CameraToWorld>) -> Prior {
+        let predicted = match (&self.last_world_pose, &self.provisional, slam_pose) {
+            (Some(p), _, _) => Some(*p),
+            (None, Some(s), Some(p)) => Some(s.transform_pose(&p)),
+            _ => None,
+        };
+        match predicted {
             Some(p) => Prior {
                 position: Some([p.centre().x, p.centre().y]),
                 heading: Some(heading_from_rotation(&p.rotation().to_rotation_matrix())),
