@@ -45,7 +45,8 @@ pub struct Args {
     /// Process only the first N frames.
     #[arg(long, value_name = "N")]
     max_frames: Option<usize>,
-    /// Settings (TOML, `SystemConfig`: [orb], [tracking], [local_mapping]); defaults otherwise.
+    /// Settings (TOML, `SystemConfig`: max_keyframes, [orb], [tracking], [local_mapping]);
+    /// defaults otherwise.
     #[arg(long, value_name = "PATH")]
     config: Option<PathBuf>,
     /// Ignore the altimeter (the scale is then the ORB-SLAM2 median depth of 1).
