@@ -216,10 +216,12 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let injected = system.fixes().iter().filter(|f| f.injected).count();
     println!(
         "fixes: {} attempts, {} found, {used} used, {inliers} inliers of the final alignment; \
-         {} skipped (thread busy), {} skipped (outage), {injected} made wrong on purpose",
+         {} skipped (thread busy), {} skipped (not tracked yet), {} skipped (outage), \
+         {injected} made wrong on purpose",
         fus_t.absolute_ms.len(),
         system.fixes().len(),
         fus_t.skipped_busy,
+        fus_t.skipped_untracked,
         fus_t.skipped_outage,
     );
     println!(
@@ -235,6 +237,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         "fixes_found": system.fixes().len(), "fixes_used": used, "fixes_inliers": inliers, "hz": hz,
         "mode": mode, "absolute_attempts": fus_t.absolute_ms.len(),
         "skipped_busy": fus_t.skipped_busy, "skipped_outage": fus_t.skipped_outage,
+        "skipped_untracked": fus_t.skipped_untracked,
         "fixes_injected_wrong": injected,
     });
     let gt_path = args.dataset.join("uav/gt.txt");

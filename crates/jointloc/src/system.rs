@@ -78,6 +78,8 @@ pub struct FusionTiming {
     pub skipped_busy: usize,
     /// Frames due for absolute localisation during an injected outage.
     pub skipped_outage: usize,
+    /// Frames due for absolute localisation before the SLAM tracked them (threaded mode).
+    pub skipped_untracked: usize,
 }
 
 /// A used fix tied to a keyframe: the camera centre and the point on the optical axis at the
@@ -227,6 +229,13 @@ impl JointLoc {
                         let outcome = loc.localize(image, alt, &prior)?;
                         self.apply(&submitted, &outcome);
                         absolute.push((index, outcome));
+                    }
+                    // A fix needs a tracked frame and a keyframe to be tied to: before the
+                    // map exists a search would only hold the thread for seconds.
+                    Absolute::Thread(_)
+                        if submitted.pose.is_none() || submitted.keyframe.is_none() =>
+                    {
+                        self.timing.skipped_untracked += 1;
                     }
                     Absolute::Thread(worker) => {
                         if worker.try_submit(index, image, alt, prior) {
