@@ -77,6 +77,43 @@ fn writes_the_report_and_refuses_to_replace_it() {
     let again = jointloc(&args);
     assert!(!again.status.success());
     assert!(String::from_utf8_lossy(&again.stderr).contains("--force"));
+
+    // --resume: every run finished before with this executable is reused, not repeated, and
+    // the rows come out the same.
+    let mut resume_args = args.to_vec();
+    resume_args.push("--resume");
+    let resumed = jointloc(&resume_args);
+    assert!(
+        resumed.status.success(),
+        "{}",
+        String::from_utf8_lossy(&resumed.stderr)
+    );
+    let json2: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
+    // The dataset exists, so its `jointloc sim` is not even looked up.
+    let runs = std::fs::read_to_string(out.join("runs/journal.jsonl"))
+        .unwrap()
+        .lines()
+        .filter(|l| !l.contains("\"jointloc sim "))
+        .count();
+    assert!(runs >= 4, "{runs} journal entries");
+    assert_eq!(json2["reused_runs"].as_u64(), Some(runs as u64));
+    assert_eq!(json2["localisation"], json["localisation"]);
+    assert!(
+        std::fs::read_to_string(out.join("report.md"))
+            .unwrap()
+            .contains("reused with `--resume`")
+    );
+
+    // A corrupt journal is a clear error naming the file.
+    std::fs::write(out.join("runs/journal.jsonl"), "not json\n").unwrap();
+    let corrupt = jointloc(&resume_args);
+    assert!(!corrupt.status.success());
+    let err = String::from_utf8_lossy(&corrupt.stderr);
+    assert!(
+        err.contains("journal.jsonl") && err.contains("line 1"),
+        "{err}"
+    );
 }
 
 #[test]

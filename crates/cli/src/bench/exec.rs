@@ -7,6 +7,8 @@ use std::time::Instant;
 
 use anyhow::{Context, bail};
 
+use super::journal::Journal;
+
 /// One finished child run.
 #[derive(Debug, Clone)]
 pub struct Finished {
@@ -16,6 +18,8 @@ pub struct Finished {
     pub wall_s: f64,
     /// Exit status; `Err` holds the last lines of the log.
     pub outcome: Result<(), String>,
+    /// Taken from an earlier invocation's journal (`--resume`) instead of run again.
+    pub reused: bool,
 }
 
 /// Runs subcommands of the current executable.
@@ -24,16 +28,24 @@ pub struct Runner {
     exe: PathBuf,
     logs: PathBuf,
     counter: usize,
+    journal: Journal,
+    /// Runs reused from the journal and their recorded wall time, seconds.
+    pub reused: (usize, f64),
 }
 
 impl Runner {
-    pub fn new(logs: &Path) -> anyhow::Result<Self> {
+    /// Runs log into `logs`; successful runs are recorded in `journal` (see
+    /// [`Journal`]), and with `resume` the ones recorded there before are not run again.
+    pub fn new(logs: &Path, journal: &Path, resume: bool) -> anyhow::Result<Self> {
         let exe = std::env::current_exe().context("locating the jointloc executable")?;
         std::fs::create_dir_all(logs).with_context(|| format!("creating {}", logs.display()))?;
+        let journal = Journal::open(journal, &exe, resume)?;
         Ok(Self {
             exe,
             logs: logs.to_path_buf(),
             counter: 0,
+            journal,
+            reused: (0, 0.0),
         })
     }
 
@@ -46,6 +58,17 @@ impl Runner {
             "jointloc {}",
             args.iter().map(|a| quote(a)).collect::<Vec<_>>().join(" ")
         );
+        if let Some(e) = self.journal.lookup(&command) {
+            tracing::info!("reused from {}: {command}", e.date);
+            self.reused.0 += 1;
+            self.reused.1 += e.wall_s;
+            return Ok(Finished {
+                command,
+                wall_s: e.wall_s,
+                outcome: Ok(()),
+                reused: true,
+            });
+        }
         tracing::info!("{command}");
         let start = Instant::now();
         let output = Command::new(&self.exe)
@@ -72,10 +95,15 @@ impl Runner {
                 reason
             })
         };
+        if outcome.is_ok() {
+            self.journal
+                .record(&command, wall_s, super::report::utc_date())?;
+        }
         Ok(Finished {
             command,
             wall_s,
             outcome,
+            reused: false,
         })
     }
 

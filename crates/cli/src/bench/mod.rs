@@ -5,6 +5,7 @@
 
 mod exec;
 mod figures;
+mod journal;
 mod machine;
 mod metrics;
 mod report;
@@ -83,6 +84,11 @@ pub struct Args {
     /// Replace an existing report in OUT.
     #[arg(long)]
     force: bool,
+    /// Go on with an interrupted (or extended) benchmark in OUT: runs that finished there
+    /// before, with the same executable and command line (OUT/runs/journal.jsonl), are not
+    /// repeated; their outputs are read again. Replaces the report.
+    #[arg(long)]
+    resume: bool,
 }
 
 /// What to run, after defaults.
@@ -165,9 +171,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let plan = Plan::from_args(&args)?;
     let out = args.out.clone();
     let report_path = out.join("report.md");
-    if report_path.exists() && !args.force {
+    if report_path.exists() && !args.force && !args.resume {
         bail!(
-            "{}: already exists (use --force to replace the report)",
+            "{}: already exists (use --force to replace the report, --resume to go on with it)",
             report_path.display()
         );
     }
@@ -182,7 +188,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     std::fs::create_dir_all(&data_root)
         .with_context(|| format!("creating {}", data_root.display()))?;
     let started = Instant::now();
-    let mut runner = Runner::new(&out.join("logs"))?;
+    let mut runner = Runner::new(
+        &out.join("logs"),
+        &out.join("runs").join("journal.jsonl"),
+        args.resume,
+    )?;
     let mut rep = Report::new(machine::describe(), &plan_summary(&plan));
 
     let datasets = make_datasets(&plan, &data_root, &mut runner)?;
@@ -202,7 +212,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     for d in ablation_sets {
         ablations(&plan, d, &out, &mut runner, &mut rep)?;
     }
-    rep.total_s = started.elapsed().as_secs_f64();
+    // Reused runs count with the time they took when they ran.
+    rep.reused_runs = runner.reused.0;
+    rep.reused_s = runner.reused.1;
+    rep.total_s = started.elapsed().as_secs_f64() + runner.reused.1;
     rep.write(&out)?;
     println!(
         "report: {} ({:.1} min)",
@@ -481,9 +494,6 @@ fn localisation_rows(
     rep.localisation.push(row);
     // VO only: Sim(3)-aligned, as monocular SLAM is evaluated.
     let vo_path = out.join("runs").join(format!("{}-vo.tum", d.name()));
-    // `vo` writes its output unconditionally; this file is the benchmark's own, from a
-    // previous run at most.
-    let _ = std::fs::remove_file(&vo_path);
     let done = runner.run(
         &format!("vo-{}", d.name()),
         &args![
@@ -492,7 +502,8 @@ fn localisation_rows(
             d.path.display(),
             "--out",
             vo_path.display(),
-            "--sequential"
+            "--sequential",
+            "--force"
         ],
     )?;
     let (row, vo) = loc_row(

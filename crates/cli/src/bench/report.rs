@@ -85,7 +85,11 @@ pub struct Report {
     pub plan: String,
     pub date: String,
     pub commit: String,
+    /// Wall time of the benchmark; with `--resume`, including the reused runs' own times.
     pub total_s: f64,
+    /// Runs reused from earlier invocations (`--resume`) and their summed wall time.
+    pub reused_runs: usize,
+    pub reused_s: f64,
     pub matching: Vec<MatchRow>,
     pub localisation: Vec<LocRow>,
     pub fusion_frequency: Vec<LocRow>,
@@ -102,6 +106,8 @@ impl Report {
             date: utc_date(),
             commit: git_commit(),
             total_s: 0.0,
+            reused_runs: 0,
+            reused_s: 0.0,
             matching: Vec::new(),
             localisation: Vec::new(),
             fusion_frequency: Vec::new(),
@@ -125,12 +131,22 @@ impl Report {
         let _ = writeln!(s, "# JointLoc benchmark\n");
         let _ = writeln!(
             s,
-            "{} · commit `{}` · {}  \n{} · total {:.1} min\n",
+            "{} · commit `{}` · {}  \n{} · total {:.1} min{}\n",
             self.date,
             self.commit,
             self.machine,
             self.plan,
-            self.total_s / 60.0
+            self.total_s / 60.0,
+            if self.reused_runs > 0 {
+                format!(
+                    " ({} runs, {:.1} min of it, ran in earlier invocations and were reused \
+                     with `--resume`)",
+                    self.reused_runs,
+                    self.reused_s / 60.0
+                )
+            } else {
+                String::new()
+            }
         );
         let _ = writeln!(
             s,
@@ -397,7 +413,7 @@ fn git_commit() -> String {
 }
 
 /// `YYYY-MM-DD HH:MM UTC` from the system clock (civil-from-days, no date crate needed).
-fn utc_date() -> String {
+pub(super) fn utc_date() -> String {
     let secs = std::time::SystemTime::now()
         .duration_since(std::time::UNIX_EPOCH)
         .map_or(0, |d| d.as_secs() as i64);
