@@ -18,8 +18,6 @@ pub struct Finished {
     pub wall_s: f64,
     /// Exit status; `Err` holds the last lines of the log.
     pub outcome: Result<(), String>,
-    /// Taken from an earlier invocation's journal (`--resume`) instead of run again.
-    pub reused: bool,
 }
 
 /// Runs subcommands of the current executable.
@@ -66,7 +64,6 @@ impl Runner {
                 command,
                 wall_s: e.wall_s,
                 outcome: Ok(()),
-                reused: true,
             });
         }
         tracing::info!("{command}");
@@ -103,7 +100,6 @@ impl Runner {
             command,
             wall_s,
             outcome,
-            reused: false,
         })
     }
 
