@@ -16,7 +16,7 @@ use crate::warp::{NormalisedFrame, normalise};
 
 /// Acceptance rules for a tile's homography.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct AcceptConfig {
     /// Matches needed before a homography is tried.
     pub min_matches: usize,

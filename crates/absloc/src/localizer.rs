@@ -28,7 +28,7 @@ use crate::warp::warp_into_map;
 
 /// Settings of [`AbsLocalizer`].
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct AbsLocConfig {
     /// How the confidence is computed (the paper: `adaptive`).
     pub confidence: ConfidenceMode,

@@ -10,7 +10,7 @@ use serde::{Deserialize, Serialize};
 
 /// SSIM parameters.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct SsimConfig {
     /// σ of the Gaussian window, pixels.
     pub sigma: f64,

@@ -192,4 +192,28 @@ fn a_bad_dataset_is_a_clear_error() {
     ]);
     assert!(!run.status.success());
     assert!(String::from_utf8_lossy(&run.stderr).contains("fusion_every"));
+    // A misspelt setting, top level or nested, is an error naming the file and the key, not
+    // silently the default.
+    for (text, key) in [
+        ("alignment_windw = 20\n", "alignment_windw"),
+        (
+            "[slam.local_mapping.ba]\nglobal_sigm = 0.5\n",
+            "global_sigm",
+        ),
+    ] {
+        let config = dir.path().join("settings.toml");
+        std::fs::write(&config, text).unwrap();
+        let run = jointloc(&[
+            "run",
+            "--dataset",
+            s(dir.path()),
+            "--out",
+            s(&dir.path().join("o")),
+            "--config",
+            s(&config),
+        ]);
+        assert!(!run.status.success());
+        let err = String::from_utf8_lossy(&run.stderr);
+        assert!(err.contains("settings.toml") && err.contains(key), "{err}");
+    }
 }

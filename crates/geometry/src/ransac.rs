@@ -13,7 +13,7 @@ use crate::error::{GeometryError, Result};
 
 /// Parameters of a RANSAC run.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct RansacConfig {
     /// Inlier threshold on the residual (pixels for image-space errors).
     pub threshold: f64,

@@ -14,7 +14,7 @@ use crate::pose::WorldToCamera;
 
 /// Parameters of [`triangulate`] and [`refine_point`].
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct TriangulationConfig {
     /// Iterations of the reprojection-error refinement; 0 keeps the linear estimate. Two or
     /// three usually suffice, since the DLT start is close.

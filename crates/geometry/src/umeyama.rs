@@ -148,7 +148,7 @@ pub fn align(
 
 /// Settings of [`align_robust`].
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct RobustAlignConfig {
     /// Kernel on the residual distance (same unit as the destination points). Cauchy keeps
     /// gross outliers from dragging the solution; Huber only bounds their pull.

@@ -9,7 +9,7 @@ use crate::faults::FaultConfig;
 
 /// JointLoc settings; the SLAM and absolute-localisation settings are nested.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct JointLocConfig {
     /// Every k-th frame goes to absolute localisation (the paper's fusion frequency, 10).
     pub fusion_every: usize,

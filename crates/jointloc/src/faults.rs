@@ -10,7 +10,7 @@ use crate::error::{JointLocError, Result};
 
 /// What to inject.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct FaultConfig {
     /// Fraction of fixes whose position is replaced by a wrong one (0: none). The confidence
     /// is kept, so wrong fixes look like real ones.

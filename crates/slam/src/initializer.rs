@@ -19,7 +19,7 @@ use crate::error::{Result, SlamError};
 
 /// Parameters of [`initialize`]; defaults follow ORB-SLAM2.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct InitializerConfig {
     /// Robust homography estimation (3 px symmetric transfer threshold).
     pub homography: HomographyConfig,

@@ -17,7 +17,7 @@ use crate::tracking::reference::{keyframe_matcher, match_keyframe};
 
 /// Settings of [`relocalise`].
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct RelocalisationConfig {
     /// Most recent keyframes tried, newest first (ORB-SLAM2 asks its bag-of-words database;
     /// a UAV that lost track is usually still near where it last was).

@@ -21,7 +21,7 @@ use crate::tracking::{Tracker, TrackingConfig, TrackingState};
 
 /// Settings of the whole relative-localisation system.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct SystemConfig {
     pub orb: OrbConfig,
     pub tracking: TrackingConfig,

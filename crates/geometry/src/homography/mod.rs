@@ -28,7 +28,7 @@ use crate::ransac::{Estimator, RansacConfig, inliers_of, ransac};
 
 /// Parameters of [`estimate_homography`].
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct HomographyConfig {
     /// RANSAC parameters; `threshold` is in pixels of symmetric transfer error (see
     /// [`HomographyEstimator`]), 3 px by default.

@@ -23,7 +23,7 @@ use refine::{check_observations, squared_error};
 
 /// Parameters of [`solve_pnp_ransac`].
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct PnpConfig {
     /// RANSAC settings; `threshold` is the reprojection error in pixels below which a
     /// correspondence is an inlier. Defaults: 2.5 px, 1000 iterations, 6 inliers (a partially

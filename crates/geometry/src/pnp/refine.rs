@@ -20,7 +20,7 @@ use crate::robust::RobustKernel;
 
 /// Parameters of [`refine_pose`].
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct RefineConfig {
     /// Robust kernel on the information-weighted squared reprojection error (pixels² when no
     /// information is given).

@@ -18,7 +18,7 @@ use crate::map::{KeyFrameId, Map, MapPointId};
 
 /// Settings of [`local_bundle_adjustment`].
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct LocalBaConfig {
     /// The solver schedule (ORB-SLAM2: 5 robust iterations, outliers out, 10 more).
     pub solver: TwoStageConfig,

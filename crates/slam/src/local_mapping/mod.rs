@@ -24,7 +24,7 @@ pub use triangulation::TriangulationConfig;
 
 /// Settings of the local mapper.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct LocalMappingConfig {
     pub triangulation: TriangulationConfig,
     pub ba: LocalBaConfig,

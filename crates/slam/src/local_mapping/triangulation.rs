@@ -13,7 +13,7 @@ use crate::orb::{hamming, orientation_consistent};
 
 /// Settings of [`create_new_points`].
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct TriangulationConfig {
     /// Covisible neighbours to triangulate with (ORB-SLAM2 monocular: 20).
     pub neighbours: usize,

@@ -13,7 +13,7 @@ use super::{KeyPoint, OrbFeatures};
 
 /// Matching thresholds.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct MatcherConfig {
     /// Largest accepted Hamming distance (ORB-SLAM2: 50 for tracking, 100 for loose searches).
     pub max_distance: u32,

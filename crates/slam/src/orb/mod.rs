@@ -98,7 +98,7 @@ pub enum Ranking {
 
 /// Parameters of [`OrbExtractor`]; defaults are ORB-SLAM2's (its `ORBextractor.*` settings).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct OrbConfig {
     /// Keypoints wanted over all levels (ORB-SLAM2 uses 1000 at 640×480; 1000 suits 500×500).
     pub n_features: usize,

@@ -16,7 +16,7 @@ use crate::orb::{Match, MatcherConfig, WindowQuery, search_in_window};
 
 /// Settings of the initialisation stage.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct InitializationConfig {
     /// Two-view reconstruction.
     pub initializer: InitializerConfig,

@@ -6,7 +6,7 @@ use serde::{Deserialize, Serialize};
 
 /// Settings of [`need_keyframe`].
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct KeyframeDecisionConfig {
     /// Frames since the last keyframe before a new one may be inserted (paper: 10).
     pub min_frames: usize,

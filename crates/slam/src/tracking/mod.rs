@@ -32,7 +32,7 @@ pub fn renormalized(mut iso: Isometry3<f64>) -> Isometry3<f64> {
 
 /// Settings of the tracker; defaults are ORB-SLAM2's unless noted.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct TrackingConfig {
     pub initialization: InitializationConfig,
     pub pose_optimization: PoseOptimizationConfig,

@@ -12,7 +12,7 @@ use crate::map::Map;
 
 /// Settings of [`optimize_pose`]; defaults are ORB-SLAM2's.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct PoseOptimizationConfig {
     /// Optimise / re-classify rounds (ORB-SLAM2: 4).
     pub rounds: usize,
