@@ -284,6 +284,7 @@ pub struct LevelKeyPoint {
 pub struct OrbExtractor {
     config: OrbConfig,
     pattern: BriefPattern,
+    steered: descriptor::SteeredPattern,
     circle: orientation::Circle,
 }
 
@@ -297,9 +298,11 @@ impl OrbExtractor {
     pub fn with_pattern(config: OrbConfig, pattern: BriefPattern) -> Result<Self> {
         config.validate()?;
         let circle = orientation::Circle::new(config.patch_size / 2);
+        let steered = descriptor::SteeredPattern::new(&pattern);
         Ok(Self {
             config,
             pattern,
+            steered,
             circle,
         })
     }
@@ -329,14 +332,14 @@ impl OrbExtractor {
         for &i in &order {
             let k = &kps[i];
             let level = &pyramid.levels[k.level as usize];
-            descriptors.push(descriptor::describe(
+            descriptors.push(descriptor::describe_steered(
                 &level.blurred,
                 level.width,
                 level.height,
                 k.x as usize,
                 k.y as usize,
                 k.angle,
-                &self.pattern,
+                &self.steered,
             ));
             let (x, y) = level.to_level0(k.x as f64, k.y as f64);
             keypoints.push(KeyPoint {

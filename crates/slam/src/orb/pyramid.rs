@@ -132,13 +132,15 @@ pub fn resize_bilinear(src: &[u8], sw: usize, sh: usize, dw: usize, dh: usize) -
         }
     }
     let mut out = vec![0u8; dw * dh];
-    let half = 1i64 << (2 * SHIFT - 1);
+    // In i32 (vectorises, unlike i64): a, b ≤ 255 · 2^11, so the sum is ≤ 255 · 2^22 + 2^21
+    // < 2^31, and the result is the same.
+    let half = 1i32 << (2 * SHIFT - 1);
     for (dy, &(y0, y1, wy)) in ys.iter().enumerate() {
         let row0 = &horiz[y0 * dw..(y0 + 1) * dw];
         let row1 = &horiz[y1 * dw..(y1 + 1) * dw];
         let dst = &mut out[dy * dw..(dy + 1) * dw];
         for (o, (&a, &b)) in dst.iter_mut().zip(row0.iter().zip(row1)) {
-            let v = (a as i64 * (ONE - wy) as i64 + b as i64 * wy as i64 + half) >> (2 * SHIFT);
+            let v = (a * (ONE - wy) + b * wy + half) >> (2 * SHIFT);
             *o = v.clamp(0, 255) as u8;
         }
     }
