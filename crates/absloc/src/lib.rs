@@ -38,4 +38,4 @@ pub use localizer::{
     AbsLocConfig, AbsLocalizer, Failure, FailureReason, Fix, Outcome, Prior, heading_from_rotation,
 };
 pub use pipeline::FeaturePipeline;
-pub use tiles::{MapTile, MapTiles};
+pub use tiles::{Ground, MapTile, MapTiles};

@@ -315,6 +315,12 @@ impl MapTiles {
         self.elevation.as_ref().map_or(0.0, |e| e.height_at(x, y))
     }
 
+    /// The ground under the map (its elevation model, or flat ground at 0) on its own, for a
+    /// caller that needs heights but not the map.
+    pub fn ground(&self) -> Ground {
+        Ground(self.elevation.clone())
+    }
+
     /// Whether the map has an elevation model.
     pub fn has_elevation(&self) -> bool {
         self.elevation.is_some()
@@ -505,6 +511,17 @@ fn fingerprint(map: &GrayImage, gsd: f64, tiles: &[MapTile], tile: (u32, u32)) -
     }
     h.write(map.as_raw());
     h.finish()
+}
+
+/// Terrain heights of a map: its elevation model, or flat ground at the datum (z = 0).
+#[derive(Debug, Clone, Default)]
+pub struct Ground(Option<ElevationModel>);
+
+impl Ground {
+    /// Height at world `(x, y)`, metres.
+    pub fn height_at(&self, x: f64, y: f64) -> f64 {
+        self.0.as_ref().map_or(0.0, |e| e.height_at(x, y))
+    }
 }
 
 #[cfg(test)]

@@ -25,11 +25,15 @@ pub struct JointLocConfig {
     /// camera (along its optical axis, at the altimeter range) with the map point: it fixes the
     /// roll about a straight track, which positions alone leave free.
     pub nadir_weight: f64,
-    /// The alignment is fitted to the most recent this-many fixes (0: all; 10 measured best
-    /// of 10/20/40/all on crater-easy-s101: 0.067 m against 0.126 m for all): SLAM drift
+    /// The alignment is fitted to the most recent this-many fixes (0: all). SLAM drift
     /// (scale, yaw) makes one similarity for the whole flight a compromise that is worst at
-    /// the current frame, which is the one being reported.
+    /// the current frame, the one being reported; too few fixes leave the fixes' noise in it.
+    /// 20 (with the global factors' σ 0.15 m) measured best of 10/20/30 on four development
+    /// flights (`docs/jointloc.md` §5).
     pub alignment_window: usize,
+    /// Reported z: shifted by the mean of `ground + altimeter − z` over the last this-many
+    /// seconds of tracked frames (see [`crate::altitude`]); 0: z from the alignment alone.
+    pub altitude_window_s: f64,
     /// Seed of the alignment RANSAC.
     pub seed: u64,
     pub slam: SystemConfig,
@@ -47,7 +51,8 @@ impl Default for JointLocConfig {
             inlier_threshold_m: 2.0,
             ransac_iterations: 200,
             nadir_weight: 0.3,
-            alignment_window: 10,
+            alignment_window: 20,
+            altitude_window_s: 5.0,
             seed: 0,
             slam: SystemConfig::default(),
             absloc: AbsLocConfig::default(),
@@ -89,6 +94,13 @@ impl JointLocConfig {
             return bad(
                 "nadir_weight",
                 self.nadir_weight.to_string(),
+                "must be finite and >= 0",
+            );
+        }
+        if !(self.altitude_window_s.is_finite() && self.altitude_window_s >= 0.0) {
+            return bad(
+                "altitude_window_s",
+                self.altitude_window_s.to_string(),
                 "must be finite and >= 0",
             );
         }

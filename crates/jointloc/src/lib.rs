@@ -5,9 +5,11 @@
 //!   localisation settings);
 //! - [`alignment`]: the robust, confidence-weighted SLAM→world similarity;
 //! - [`system`]: the driver [`JointLoc`], sequential or threaded;
+//! - [`altitude`]: altimeter-aided z of the reported poses;
 //! - [`faults`]: wrong fixes and outages injected for the robustness evaluation.
 
 pub mod alignment;
+pub mod altitude;
 pub mod config;
 pub mod error;
 pub mod faults;

@@ -22,6 +22,7 @@ use nalgebra::{Isometry3, Point3, Vector3};
 use serde::Serialize;
 
 use crate::alignment::{self, Correspondence, SlamToWorld};
+use crate::altitude::AltitudeFilter;
 use crate::config::JointLocConfig;
 use crate::error::Result;
 use crate::worker::AbsoluteWorker;
@@ -132,6 +133,7 @@ pub struct JointLoc {
     /// only to predict where to search next, never to report a pose.
     provisional: Option<Sim3>,
     timing: FusionTiming,
+    altitude: AltitudeFilter,
     next_index: usize,
     last_world_pose: Option<CameraToWorld>,
 }
@@ -143,7 +145,8 @@ impl JointLoc {
         absolute: AbsLocalizer,
         config: JointLocConfig,
     ) -> Result<Self> {
-        Self::build(camera, Absolute::Inline(Box::new(absolute)), config)
+        let ground = absolute.tiles().ground();
+        Self::build(camera, Absolute::Inline(Box::new(absolute)), ground, config)
     }
 
     /// The real-time system: absolute localisation on its own thread; frames due while it is
@@ -154,16 +157,24 @@ impl JointLoc {
         config: JointLocConfig,
     ) -> Result<Self> {
         config.validate()?;
+        let ground = absolute.tiles().ground();
         Self::build(
             camera,
             Absolute::Thread(AbsoluteWorker::spawn(absolute)?),
+            ground,
             config,
         )
     }
 
-    fn build(camera: PinholeCamera, absolute: Absolute, config: JointLocConfig) -> Result<Self> {
+    fn build(
+        camera: PinholeCamera,
+        absolute: Absolute,
+        ground: jointloc_absloc::Ground,
+        config: JointLocConfig,
+    ) -> Result<Self> {
         config.validate()?;
         let slam = System::new(camera, config.slam.clone())?;
+        let altitude = AltitudeFilter::new(config.altitude_window_s, ground);
         Ok(Self {
             config,
             slam,
@@ -174,6 +185,7 @@ impl JointLoc {
             alignment: None,
             provisional: None,
             timing: FusionTiming::default(),
+            altitude,
             next_index: 0,
             last_world_pose: None,
         })
@@ -250,8 +262,19 @@ impl JointLoc {
         while let Some((frame, outcome)) = self.next_finished(false)? {
             absolute.push((frame, outcome));
         }
+        match (r.pose, altitude) {
+            (Some(p), Some(alt)) => self.altitude.push(timestamp, p.centre(), alt),
+            (None, _) => self.altitude.clear(),
+            _ => {}
+        }
         let world_pose = match (&self.alignment, r.pose) {
-            (Some(a), Some(p)) => Some(a.sim3.transform_pose(&p)),
+            (Some(a), Some(p)) => {
+                let mut pose = a.sim3.transform_pose(&p);
+                if let Some(dz) = self.altitude.z_offset(&a.sim3) {
+                    pose.0.translation.vector.z += dz;
+                }
+                Some(pose)
+            }
             _ => None,
         };
         if world_pose.is_some() {
