@@ -1,7 +1,7 @@
 //! `jointloc run` end to end on a small simulated dataset with the ORB matcher (no model files
 //! needed): world-frame trajectory without any alignment, fixes, timing, sequential and
-//! threaded, and with injected wrong fixes; outputs are not replaced without `--force`; a bad
-//! dataset is a clear error.
+//! threaded, with and without the altimeter aid of z, and with injected wrong fixes; outputs
+//! are not replaced without `--force`; a bad dataset is a clear error.
 
 use std::path::Path;
 use std::process::{Command, Output};
@@ -15,6 +15,19 @@ fn jointloc(args: &[&str]) -> Output {
 
 fn s(p: &Path) -> &str {
     p.to_str().unwrap()
+}
+
+/// Positions of a TUM file by timestamp (µs), comment lines skipped.
+fn poses(path: &Path) -> std::collections::BTreeMap<i64, [f64; 3]> {
+    std::fs::read_to_string(path)
+        .unwrap()
+        .lines()
+        .filter(|l| !l.starts_with('#') && !l.trim().is_empty())
+        .map(|l| {
+            let v: Vec<f64> = l.split_whitespace().map(|x| x.parse().unwrap()).collect();
+            ((v[0] * 1e6).round() as i64, [v[1], v[2], v[3]])
+        })
+        .collect()
 }
 
 #[test]
@@ -91,6 +104,51 @@ fn fuses_into_the_world_frame_and_refuses_to_overwrite() {
             frames + 1 - traj.lines().filter(|l| l.contains("not tracked")).count() as u64,
             "{traj}"
         );
+        // The altimeter aid moves z only, and towards the truth: the same run without it has
+        // identical x, y and a larger z error.
+        let no_aid = dir.path().join("no-aid");
+        let cfg = dir.path().join("no-aid.toml");
+        std::fs::write(&cfg, "altitude_window_s = 0.0\n").unwrap();
+        let run = jointloc(&[
+            "run",
+            "--dataset",
+            s(&data),
+            "--out",
+            s(&no_aid),
+            "--matcher",
+            "orb",
+            "--sequential",
+            "--config",
+            s(&cfg),
+        ]);
+        assert!(
+            run.status.success(),
+            "{}",
+            String::from_utf8_lossy(&run.stderr)
+        );
+        let gt = poses(&data.join("uav/gt.txt"));
+        let (with, without) = (
+            poses(&out.join("trajectory.tum")),
+            poses(&no_aid.join("trajectory.tum")),
+        );
+        assert_eq!(with.len(), without.len());
+        let mut z2 = [0.0, 0.0];
+        for (t, p) in &with {
+            let q = &without[t];
+            assert!(
+                (p[0] - q[0]).abs() < 1e-9 && (p[1] - q[1]).abs() < 1e-9,
+                "seed {seed}: x, y moved at {t}"
+            );
+            z2[0] += (p[2] - gt[t][2]).powi(2);
+            z2[1] += (q[2] - gt[t][2]).powi(2);
+        }
+        assert!(
+            z2[0] < z2[1],
+            "seed {seed}: z error with the altimeter aid {} >= without {}",
+            (z2[0] / with.len() as f64).sqrt(),
+            (z2[1] / with.len() as f64).sqrt()
+        );
+
         let again = jointloc(&args);
         assert!(!again.status.success());
         assert!(String::from_utf8_lossy(&again.stderr).contains("--force"));
