@@ -48,6 +48,11 @@ pub struct Args {
     /// Robustness test: no absolute localisation for DURATION seconds from START.
     #[arg(long, value_name = "START:DURATION")]
     outage: Option<String>,
+    /// World x, y (metres, map frame) of the take-off, if known (e.g. the lander's position):
+    /// the first absolute search starts from the map tiles nearest to it instead of searching
+    /// the whole map.
+    #[arg(long, value_name = "X,Y")]
+    start: Option<String>,
     /// Settings (TOML, `JointLocConfig` with [slam] and [absloc] tables); flags override it.
     #[arg(long, value_name = "PATH")]
     config: Option<PathBuf>,
@@ -104,6 +109,13 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             .with_context(|| format!("--outage {o}: expected START:DURATION in seconds"))?;
         config.faults.outage_start_s = Some(start);
         config.faults.outage_duration_s = duration;
+    }
+    if let Some(p) = &args.start {
+        let (x, y) = p
+            .split_once(',')
+            .and_then(|(a, b)| Some((a.trim().parse::<f64>().ok()?, b.trim().parse::<f64>().ok()?)))
+            .with_context(|| format!("--start {p}: expected X,Y in metres"))?;
+        config.start_position = Some([x, y]);
     }
     config.validate()?;
     let camera = read_camera_yaml(&args.dataset.join("camera.yaml"))?.camera;
@@ -239,6 +251,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         "skipped_busy": fus_t.skipped_busy, "skipped_outage": fus_t.skipped_outage,
         "skipped_untracked": fus_t.skipped_untracked,
         "fixes_injected_wrong": injected,
+        "first_fix_global": system.fixes().first().map(|f| f.global),
+        "first_fix_searched_tiles": system.fixes().first().map(|f| f.searched_tiles),
     });
     let gt_path = args.dataset.join("uav/gt.txt");
     if gt_path.exists() && written >= 3 {

@@ -149,6 +149,52 @@ fn fuses_into_the_world_frame_and_refuses_to_overwrite() {
             (z2[1] / with.len() as f64).sqrt()
         );
 
+        // Without a start position the first search sweeps the whole map (tens of tile and
+        // rotation evaluations); with the take-off position (here the first ground-truth x, y,
+        // 1 m off) it starts from the nearest tile and stops there.
+        let first = gt.values().next().unwrap();
+        let start = format!("{},{}", first[0] + 0.7, first[1] - 0.7);
+        let started = dir.path().join("started");
+        let run = jointloc(&[
+            "run",
+            "--dataset",
+            s(&data),
+            "--out",
+            s(&started),
+            "--matcher",
+            "orb",
+            "--sequential",
+            "--start",
+            &start,
+        ]);
+        assert!(
+            run.status.success(),
+            "{}",
+            String::from_utf8_lossy(&run.stderr)
+        );
+        let st: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(started.join("summary.json")).unwrap())
+                .unwrap();
+        let (with_start, without) = (
+            st["first_fix_searched_tiles"].as_u64().unwrap(),
+            summary["first_fix_searched_tiles"].as_u64().unwrap(),
+        );
+        assert!(
+            with_start * 4 <= without,
+            "seed {seed}: {with_start} tiles matched with --start, {without} without"
+        );
+        let bad = jointloc(&[
+            "run",
+            "--dataset",
+            s(&data),
+            "--out",
+            s(&dir.path().join("bad")),
+            "--start",
+            "north",
+        ]);
+        assert!(!bad.status.success());
+        assert!(String::from_utf8_lossy(&bad.stderr).contains("--start north: expected X,Y"));
+
         let again = jointloc(&args);
         assert!(!again.status.success());
         assert!(String::from_utf8_lossy(&again.stderr).contains("--force"));

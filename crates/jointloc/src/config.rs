@@ -34,6 +34,10 @@ pub struct JointLocConfig {
     /// Reported z: shifted by the mean of `ground + altimeter − z` over the last this-many
     /// seconds of tracked frames (see [`crate::altitude`]); 0: z from the alignment alone.
     pub altitude_window_s: f64,
+    /// World (x, y) of the take-off, metres, if known (e.g. the lander's position): the first
+    /// absolute search starts from the tiles nearest to it instead of the whole map (a
+    /// whole-map search with 8 rotation hypotheses takes seconds). `None`: whole map.
+    pub start_position: Option<[f64; 2]>,
     /// Seed of the alignment RANSAC.
     pub seed: u64,
     pub slam: SystemConfig,
@@ -53,6 +57,7 @@ impl Default for JointLocConfig {
             nadir_weight: 0.3,
             alignment_window: 20,
             altitude_window_s: 5.0,
+            start_position: None,
             seed: 0,
             slam: SystemConfig::default(),
             absloc: AbsLocConfig::default(),
@@ -103,6 +108,11 @@ impl JointLocConfig {
                 self.altitude_window_s.to_string(),
                 "must be finite and >= 0",
             );
+        }
+        if let Some(p) = self.start_position
+            && !p.iter().all(|v| v.is_finite())
+        {
+            return bad("start_position", format!("{p:?}"), "must be finite");
         }
         self.faults.validate()
     }

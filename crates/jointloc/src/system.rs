@@ -39,6 +39,9 @@ pub struct FixRecord {
     pub match_score: f64,
     pub tile: usize,
     pub inliers: usize,
+    /// Tiles matched for this fix, and whether the whole map was searched.
+    pub searched_tiles: usize,
+    pub global: bool,
     /// Whether the fix went into the fusion (confidence high enough and a keyframe to tie it
     /// to) and, after the latest alignment, whether it was an inlier.
     pub used: bool,
@@ -358,6 +361,8 @@ impl JointLoc {
             match_score: fix.match_score,
             tile: fix.tile,
             inliers: fix.inliers,
+            searched_tiles: fix.searched_tiles,
+            global: fix.global,
             used,
             inlier: false,
             injected: offset.is_some(),
@@ -384,7 +389,11 @@ impl JointLoc {
                 position: Some([p.centre().x, p.centre().y]),
                 heading: Some(heading_from_rotation(&p.rotation().to_rotation_matrix())),
             },
-            None => Prior::default(),
+            // Nothing tracked and fixed yet: the take-off position, if the user gave one.
+            None => Prior {
+                position: self.config.start_position,
+                heading: None,
+            },
         }
     }
 
