@@ -84,6 +84,14 @@ pub fn ape(
     xy_only: bool,
 ) -> anyhow::Result<Ape> {
     let mut est = read_tum_prefix(estimate)?;
+    if est.timestamps.is_empty() {
+        anyhow::bail!(
+            "no world-frame pose in {}: no fix came back before the last frame (threaded, the \
+             first whole-map search can outlast a short flight; `jointloc run --start X,Y` \
+             starts it at the take-off position)",
+            estimate.display()
+        );
+    }
     let mut reference = gt.clone();
     if xy_only {
         flatten(&mut est);
