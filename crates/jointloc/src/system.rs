@@ -2,12 +2,12 @@
 //! frame also goes to absolute localisation, whose fix (x, y from the map, z from the altimeter
 //! over the map's elevation) is tied to the keyframe that was current at that frame. In the
 //! sequential mode the search runs inline (deterministic); in the threaded mode it runs on its
-//! own thread and its fix is applied when it arrives, a few frames later. The SLAM→world similarity is re-fitted from
-//! all fixes against the keyframes' *current* poses whenever a fix arrives, and each fix
-//! becomes a global-position factor `w · ρ(‖S·C − P‖²)` of its keyframe in the local BA, so
-//! the map itself is pulled into the world frame. Poses are reported in the world frame once
-//! an alignment exists, and flagged as not geo-referenced before.
-
+//! own thread and its fix is applied when it arrives, a few frames later. The SLAM→world
+//! similarity is re-fitted from the most recent fixes against the keyframes' *current* poses
+//! whenever a fix arrives, and each fix becomes a global-position factor `w · ρ(‖S·C − P‖²)`
+//! of its keyframe in the local BA, so the map itself is pulled into the world frame. Poses
+//! are reported in the world frame once an alignment exists (z aided by every frame's
+//! altimeter reading, [`crate::altitude`]), and flagged as not geo-referenced before.
 use std::collections::BTreeMap;
 use std::time::Instant;
 
