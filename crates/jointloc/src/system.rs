@@ -8,6 +8,7 @@
 //! of its keyframe in the local BA, so the map itself is pulled into the world frame. Poses
 //! are reported in the world frame once an alignment exists (z aided by every frame's
 //! altimeter reading, [`crate::altitude`]), and flagged as not geo-referenced before.
+
 use std::collections::BTreeMap;
 use std::time::Instant;
 
