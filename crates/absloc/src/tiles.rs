@@ -42,7 +42,7 @@ pub struct MapTiles {
     root: PathBuf,
     fingerprint: u64,
     /// The terrain elevation model of `map.toml`'s `[elevation]`, if any.
-    elevation: Option<ElevationModel>,
+    ground: Ground,
 }
 
 impl MapTiles {
@@ -137,7 +137,7 @@ impl MapTiles {
             tiles,
             root,
         )?;
-        out.elevation = elevation;
+        out.ground = Ground(elevation);
         Ok(out)
     }
 
@@ -263,7 +263,7 @@ impl MapTiles {
             tiles,
             root: root.to_path_buf(),
             fingerprint,
-            elevation: None,
+            ground: Ground::default(),
         })
     }
 
@@ -305,25 +305,25 @@ impl MapTiles {
             overlap,
             &self.root,
         )?;
-        out.elevation = self.elevation.clone();
+        out.ground = self.ground.clone();
         Ok(out)
     }
 
     /// Terrain height at world `(x, y)` from the map's elevation model; 0 (flat ground at the
     /// datum, DESIGN §3) when the map has none.
     pub fn ground_height(&self, x: f64, y: f64) -> f64 {
-        self.elevation.as_ref().map_or(0.0, |e| e.height_at(x, y))
+        self.ground.height_at(x, y)
     }
 
     /// The ground under the map (its elevation model, or flat ground at 0) on its own, for a
     /// caller that needs heights but not the map.
     pub fn ground(&self) -> Ground {
-        Ground(self.elevation.clone())
+        self.ground.clone()
     }
 
     /// Whether the map has an elevation model.
     pub fn has_elevation(&self) -> bool {
-        self.elevation.is_some()
+        self.ground.0.is_some()
     }
 
     /// The whole map.

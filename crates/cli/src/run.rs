@@ -103,18 +103,14 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         config.faults.wrong_fix_fraction = f;
     }
     if let Some(o) = &args.outage {
-        let (start, duration) = o
-            .split_once(':')
-            .and_then(|(a, b)| Some((a.trim().parse::<f64>().ok()?, b.trim().parse::<f64>().ok()?)))
+        let (start, duration) = number_pair(o, ':')
             .with_context(|| format!("--outage {o}: expected START:DURATION in seconds"))?;
         config.faults.outage_start_s = Some(start);
         config.faults.outage_duration_s = duration;
     }
     if let Some(p) = &args.start {
-        let (x, y) = p
-            .split_once(',')
-            .and_then(|(a, b)| Some((a.trim().parse::<f64>().ok()?, b.trim().parse::<f64>().ok()?)))
-            .with_context(|| format!("--start {p}: expected X,Y in metres"))?;
+        let (x, y) =
+            number_pair(p, ',').with_context(|| format!("--start {p}: expected X,Y in metres"))?;
         config.start_position = Some([x, y]);
     }
     config.validate()?;
@@ -303,4 +299,10 @@ fn write_fixes(path: &Path, system: &JointLoc) -> anyhow::Result<()> {
         ));
     }
     std::fs::write(path, s).with_context(|| format!("writing {}", path.display()))
+}
+
+/// Two numbers separated by `separator` (`"60:30"`, `"36.5,-41"`).
+fn number_pair(text: &str, separator: char) -> Option<(f64, f64)> {
+    let (a, b) = text.split_once(separator)?;
+    Some((a.trim().parse().ok()?, b.trim().parse().ok()?))
 }
