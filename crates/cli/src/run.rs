@@ -1,5 +1,6 @@
 //! `jointloc run`: the fused system on a dataset, threaded (real time: absolute localisation on
-//! its own thread, frames fed as fast as they are tracked) or `--sequential` (deterministic).
+//! its own thread; frames fed as fast as they are tracked, or with `--realtime` at their
+//! timestamps, as the camera delivers them) or `--sequential` (deterministic).
 //! Writes the world-frame pose of
 //! every frame as it was known at that frame (TUM, online; frames before the first alignment
 //! are comment lines flagged "not geo-referenced"), the keyframe trajectory, the fixes with
@@ -41,6 +42,13 @@ pub struct Args {
     /// instead of on its own thread (real time: frames due while it is busy are skipped).
     #[arg(long)]
     sequential: bool,
+    /// Replay frames at their timestamps, as the camera would deliver them, sped up by SPEED
+    /// (default 1: the camera rate). Without it frames follow each other as fast as they are
+    /// tracked, so a short flight can end before the first whole-map search returns.
+    /// Reports the lag behind the camera.
+    #[arg(long, value_name = "SPEED", num_args = 0..=1, default_missing_value = "1",
+          conflicts_with = "sequential")]
+    realtime: Option<f64>,
     /// Robustness test: replace this fraction of the fixes by positions 10–50 m off
     /// (seeded; the confidence is kept). Flagged in fixes.txt.
     #[arg(long, value_name = "FRACTION")]
@@ -113,6 +121,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             number_pair(p, ',').with_context(|| format!("--start {p}: expected X,Y in metres"))?;
         config.start_position = Some([x, y]);
     }
+    if let Some(speed) = args.realtime
+        && !(speed.is_finite() && speed > 0.0)
+    {
+        bail!("--realtime {speed}: the replay speed must be a positive number");
+    }
     config.validate()?;
     let camera = read_camera_yaml(&args.dataset.join("camera.yaml"))?.camera;
     let sequence = Sequence::open(&args.dataset)?;
@@ -133,10 +146,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     } else {
         JointLoc::threaded(camera, absolute, config.clone())?
     };
-    let mode = if args.sequential {
-        "sequential"
-    } else {
-        "threaded"
+    let mode = match (args.sequential, args.realtime) {
+        (true, _) => "sequential",
+        (false, None) => "threaded",
+        (false, Some(_)) => "threaded, real-time replay",
     };
     let traj_path = args.out.join("trajectory.tum");
     let mut traj = std::io::BufWriter::new(
@@ -150,12 +163,24 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let n = args.max_frames.unwrap_or(usize::MAX).min(sequence.len());
     let (mut geo_from, mut written, mut lost) = (None, 0usize, 0usize);
     let start = Instant::now();
+    let mut replay = args
+        .realtime
+        .map(|speed| Replay::new(speed, sequence.frames.first().map_or(0.0, |f| f.timestamp)));
+    let mut busy_s = 0.0;
     for i in 0..n {
         let f = &sequence.frames[i];
         let image = sequence.load_image(i)?;
+        if let Some(r) = &mut replay {
+            r.wait_for(f.timestamp);
+        }
+        let began = Instant::now();
         let r = system
             .process(&image, f.timestamp, f.altitude)
             .with_context(|| format!("frame {i} ({})", f.path.display()))?;
+        busy_s += began.elapsed().as_secs_f64();
+        if let Some(r) = &mut replay {
+            r.record_done(f.timestamp);
+        }
         if r.state == jointloc_slam::tracking::TrackingState::Lost {
             lost += 1;
         }
@@ -201,6 +226,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let slam_t = system.slam().timing();
     let fus_t = system.timing();
     let hz = n as f64 / wall.max(1e-9);
+    // What the frame loop could sustain: frames over the time spent in `process`.
+    let capacity_hz = n as f64 / busy_s.max(1e-9);
     let timing = serde_json::json!({
         "absolute_localisation_ms": median(&fus_t.absolute_ms),
         "alignment_ms": median(&fus_t.alignment_ms),
@@ -210,6 +237,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         "local_ba_ms": median(&slam_t.lba_ms),
         "frame_ms": median(&fus_t.frame_ms),
         "hz": hz,
+        "capacity_hz": capacity_hz,
     });
     std::fs::write(
         args.out.join("timing.json"),
@@ -221,6 +249,16 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         "{n} frames in {wall:.1} s ({hz:.1} Hz, {mode}); {lost} lost; geo-referenced from frame {}; {written} world poses written",
         geo_from.map_or("-".into(), |i: usize| i.to_string())
     );
+    if let Some(r) = &replay {
+        println!(
+            "real-time replay at {}× the camera rate: capacity {capacity_hz:.1} Hz; lag behind the \
+             camera median {:.1} ms, max {:.1} ms; {} of {n} frames due before the previous one was done",
+            r.speed,
+            r.lag_median_ms(),
+            r.lag_max_ms(),
+            r.late
+        );
+    }
     let injected = system.fixes().iter().filter(|f| f.injected).count();
     println!(
         "fixes: {} attempts, {} found, {used} used, {inliers} inliers of the final alignment; \
@@ -249,7 +287,16 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         "fixes_injected_wrong": injected,
         "first_fix_global": system.fixes().first().map(|f| f.global),
         "first_fix_searched_tiles": system.fixes().first().map(|f| f.searched_tiles),
+        "capacity_hz": capacity_hz,
     });
+    if let Some(r) = &replay {
+        summary["realtime"] = serde_json::json!({
+            "speed": r.speed,
+            "lag_median_ms": r.lag_median_ms(),
+            "lag_max_ms": r.lag_max_ms(),
+            "frames_late": r.late,
+        });
+    }
     let gt_path = args.dataset.join("uav/gt.txt");
     if gt_path.exists() && written >= 3 {
         let gt = Trajectory::read_tum(&gt_path, &TumOptions::default())?;
@@ -299,6 +346,57 @@ fn write_fixes(path: &Path, system: &JointLoc) -> anyhow::Result<()> {
         ));
     }
     std::fs::write(path, s).with_context(|| format!("writing {}", path.display()))
+}
+
+/// Frames released at their timestamps (scaled by `speed`) from the start of the run, and how
+/// far behind the camera the processing of each one finished.
+struct Replay {
+    speed: f64,
+    first_timestamp: f64,
+    started: Instant,
+    lags_ms: Vec<f64>,
+    /// Frames that were due before the previous one was done (the loop fell behind).
+    late: usize,
+}
+
+impl Replay {
+    fn new(speed: f64, first_timestamp: f64) -> Self {
+        Self {
+            speed,
+            first_timestamp,
+            started: Instant::now(),
+            lags_ms: Vec::new(),
+            late: 0,
+        }
+    }
+
+    /// Seconds after the start at which the camera delivers the frame stamped `timestamp`.
+    fn due_s(&self, timestamp: f64) -> f64 {
+        ((timestamp - self.first_timestamp) / self.speed).max(0.0)
+    }
+
+    fn wait_for(&mut self, timestamp: f64) {
+        let due = self.due_s(timestamp);
+        let now = self.started.elapsed().as_secs_f64();
+        if due > now {
+            std::thread::sleep(std::time::Duration::from_secs_f64(due - now));
+        } else if !self.lags_ms.is_empty() {
+            self.late += 1;
+        }
+    }
+
+    fn record_done(&mut self, timestamp: f64) {
+        let lag = self.started.elapsed().as_secs_f64() - self.due_s(timestamp);
+        self.lags_ms.push(lag * 1e3);
+    }
+
+    fn lag_median_ms(&self) -> f64 {
+        median(&self.lags_ms)
+    }
+
+    fn lag_max_ms(&self) -> f64 {
+        self.lags_ms.iter().copied().fold(0.0, f64::max)
+    }
 }
 
 /// Two numbers separated by `separator` (`"60:30"`, `"36.5,-41"`).

@@ -231,6 +231,62 @@ fn fuses_into_the_world_frame_and_refuses_to_overwrite() {
             "seed {seed}: threaded rmse {rmse_t}\n{stdout}"
         );
 
+        // Real-time replay: frames released at their timestamps (here 3× the 5 Hz camera
+        // rate), so 60 frames cannot take less than 59 × 0.2 s / 3; the lag behind the camera
+        // is reported and no frame is dropped.
+        if seed == "31" {
+            let rt = dir.path().join("realtime");
+            let began = std::time::Instant::now();
+            let run = jointloc(&[
+                "run",
+                "--dataset",
+                s(&data),
+                "--out",
+                s(&rt),
+                "--matcher",
+                "orb",
+                "--realtime",
+                "3",
+                "--max-frames",
+                "60",
+            ]);
+            let wall = began.elapsed().as_secs_f64();
+            let stdout = String::from_utf8_lossy(&run.stdout).into_owned();
+            assert!(run.status.success(), "{stdout}");
+            assert!(wall >= 59.0 * 0.2 / 3.0, "{wall} s\n{stdout}");
+            assert!(
+                stdout.contains("real-time replay at 3× the camera rate"),
+                "{stdout}"
+            );
+            let r: serde_json::Value =
+                serde_json::from_str(&std::fs::read_to_string(rt.join("summary.json")).unwrap())
+                    .unwrap();
+            assert_eq!(r["mode"], "threaded, real-time replay");
+            assert_eq!(r["frames"], 60);
+            assert_eq!(r["realtime"]["speed"], 3.0);
+            let lag = r["realtime"]["lag_max_ms"].as_f64().unwrap();
+            assert!(lag.is_finite() && lag >= 0.0, "{lag}");
+            assert!(r["capacity_hz"].as_f64().unwrap() > 0.0);
+            let t = std::fs::read_to_string(rt.join("trajectory.tum")).unwrap();
+            assert_eq!(
+                t.lines().filter(|l| !l.starts_with("# timestamp")).count(),
+                60
+            );
+            // --realtime is the threaded mode's; with --sequential it is refused.
+            let bad = jointloc(&[
+                "run",
+                "--dataset",
+                s(&data),
+                "--out",
+                s(&rt),
+                "--force",
+                "--sequential",
+                "--realtime",
+            ]);
+            assert!(!bad.status.success());
+            assert!(String::from_utf8_lossy(&bad.stderr).contains("--realtime"));
+        }
+
         // Wrong fixes (30 %, 10-50 m off) are rejected by the alignment.
         let faulty = dir.path().join("faulty");
         let run = jointloc(&[

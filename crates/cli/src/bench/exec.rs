@@ -29,6 +29,9 @@ pub struct Runner {
     journal: Journal,
     /// Runs reused from the journal and their recorded wall time, seconds.
     pub reused: (usize, f64),
+    /// Runs of this invocation by command: a row that is the same run as another (the
+    /// ablations' default settings) shares it instead of running it twice.
+    done: std::collections::HashMap<String, Finished>,
 }
 
 impl Runner {
@@ -44,6 +47,7 @@ impl Runner {
             counter: 0,
             journal,
             reused: (0, 0.0),
+            done: Default::default(),
         })
     }
 
@@ -56,15 +60,20 @@ impl Runner {
             "jointloc {}",
             args.iter().map(|a| quote(a)).collect::<Vec<_>>().join(" ")
         );
+        if let Some(f) = self.done.get(&command) {
+            return Ok(f.clone());
+        }
         if let Some(e) = self.journal.lookup(&command) {
             tracing::info!("reused from {}: {command}", e.date);
             self.reused.0 += 1;
             self.reused.1 += e.wall_s;
-            return Ok(Finished {
-                command,
+            let finished = Finished {
+                command: command.clone(),
                 wall_s: e.wall_s,
                 outcome: Ok(()),
-            });
+            };
+            self.done.insert(command, finished.clone());
+            return Ok(finished);
         }
         tracing::info!("{command}");
         let start = Instant::now();
@@ -96,11 +105,13 @@ impl Runner {
             self.journal
                 .record(&command, wall_s, super::report::utc_date())?;
         }
-        Ok(Finished {
-            command,
+        let finished = Finished {
+            command: command.clone(),
             wall_s,
             outcome,
-        })
+        };
+        self.done.insert(command, finished.clone());
+        Ok(finished)
     }
 
     /// Like [`Runner::run`] but a failure is an error (for steps everything else needs).

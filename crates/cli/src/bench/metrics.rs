@@ -86,8 +86,8 @@ pub fn ape(
     let mut est = read_tum_prefix(estimate)?;
     if est.timestamps.is_empty() {
         anyhow::bail!(
-            "no world-frame pose in {}: no fix came back before the last frame (threaded, the \
-             first whole-map search can outlast a short flight; `jointloc run --start X,Y` \
+            "no world-frame pose in {}: no fix came back before the last frame (threaded, \
+             the first whole-map search can outlast a short flight; `jointloc run --start X,Y` \
              starts it at the take-off position)",
             estimate.display()
         );

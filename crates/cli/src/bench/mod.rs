@@ -41,8 +41,8 @@ pub struct Args {
     #[arg(long)]
     out: PathBuf,
     /// Short protocol for a first look (≤ 20 min on 2 cores): one seed, 60 m flights, easy only,
-    /// 10 pairs and the three fastest matchers in the matching table, ablations on the first
-    /// terrain only.
+    /// the three fastest matchers in the matching table. Ablations are on the first terrain and
+    /// difficulty in both protocols.
     #[arg(long)]
     quick: bool,
     /// Seeds per terrain and difficulty (default 3; 1 with --quick).
@@ -70,13 +70,18 @@ pub struct Args {
     /// Matcher of the JointLoc and absolute-only rows.
     #[arg(long, value_name = "M", default_value = "xfeat-lighterglue")]
     matcher: String,
-    /// Absolute-only rows localise every K-th frame (default 1, every frame as the paper's
-    /// baseline; 5 with --quick).
-    #[arg(long, value_name = "K")]
-    abs_every: Option<usize>,
-    /// Image pairs per dataset in the matching table (default 30; 10 with --quick).
-    #[arg(long, value_name = "N")]
-    pairs: Option<usize>,
+    /// Absolute-only rows localise every K-th frame (the frames JointLoc fuses; the paper's
+    /// baseline localises every frame, which gives the same error statistics at 10× the time).
+    #[arg(long, value_name = "K", default_value_t = 10)]
+    abs_every: usize,
+    /// Image pairs per dataset in the matching table (so 10 × seeds per terrain and
+    /// difficulty).
+    #[arg(long, value_name = "N", default_value_t = 10)]
+    pairs: usize,
+    /// The real-time rows replay each flight at this multiple of its camera rate (`jointloc
+    /// run --realtime S`); above 1 the absolute thread has less time per fix than in flight.
+    #[arg(long, value_name = "S", default_value_t = 1.0)]
+    replay_speed: f64,
     /// Tables to produce, comma separated: matching, localisation, fusion, area, confidence
     /// (module timing and figures come with localisation).
     #[arg(long, value_delimiter = ',', default_values_t = TABLES.map(String::from))]
@@ -104,6 +109,8 @@ struct Plan {
     pairs: usize,
     /// Absolute-only: localise every K-th frame.
     abs_every: usize,
+    /// Real-time rows: replay speed, × the camera rate.
+    replay_speed: f64,
     tables: Vec<String>,
 }
 
@@ -119,8 +126,14 @@ impl Plan {
         if seeds == 0 {
             bail!("--seeds must be at least 1");
         }
-        if a.abs_every == Some(0) {
+        if a.abs_every == 0 {
             bail!("--abs-every must be at least 1");
+        }
+        if a.pairs == 0 {
+            bail!("--pairs must be at least 1");
+        }
+        if !(a.replay_speed.is_finite() && a.replay_speed > 0.0) {
+            bail!("--replay-speed must be a positive number");
         }
         let difficulties = a.difficulty.clone().unwrap_or_else(|| {
             if a.quick {
@@ -160,8 +173,9 @@ impl Plan {
             length_m,
             matchers,
             matcher: a.matcher.clone(),
-            pairs: a.pairs.unwrap_or(if a.quick { 10 } else { 30 }),
-            abs_every: a.abs_every.unwrap_or(if a.quick { 5 } else { 1 }),
+            pairs: a.pairs,
+            abs_every: a.abs_every,
+            replay_speed: a.replay_speed,
             tables: a.tables.clone(),
         })
     }
@@ -204,10 +218,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             localisation_rows(&plan, d, &out, &mut runner, &mut rep)?;
         }
     }
+    // Ablations on the first terrain and difficulty, every seed (one with --quick): enough to
+    // tell a setting's effect from seed noise at a fraction of the time of every flight.
     let ablation_sets: Vec<&Dataset> = datasets
         .iter()
-        .filter(|d| !plan.quick || (d.terrain == plan.terrains[0] && d.seed == plan.seeds[0]))
-        .filter(|d| d.difficulty == plan.difficulties[0])
+        .filter(|d| d.terrain == plan.terrains[0] && d.difficulty == plan.difficulties[0])
         .collect();
     for d in ablation_sets {
         ablations(&plan, d, &out, &mut runner, &mut rep)?;
@@ -367,19 +382,16 @@ fn read_match_json(path: &Path) -> anyhow::Result<Vec<MatchJsonRow>> {
     Ok(rows)
 }
 
-/// Frames per second of a whole run: the run's own figure when it reports one, else frames
-/// over process wall time (which then includes start-up).
+/// Frames per second of a run: what its frame loop sustains (`capacity_hz`: frames over the
+/// time spent processing them, which a real-time replay's waits do not count), else its own
+/// frames-over-wall figure, else frames over process wall time (start-up included).
 fn hz_of(
     done: &Finished,
     frames: usize,
     timing: Option<&std::collections::BTreeMap<String, f64>>,
 ) -> f64 {
     timing
-        .and_then(|t| {
-            t.iter()
-                .find(|(k, _)| k.to_ascii_lowercase().ends_with("hz"))
-                .map(|(_, v)| *v)
-        })
+        .and_then(|t| t.get("capacity_hz").or_else(|| t.get("hz")).copied())
         .unwrap_or(frames as f64 / done.wall_s.max(1e-9))
 }
 
@@ -406,7 +418,7 @@ fn jointloc_run(
     ]
     .to_vec();
     // Deterministic unless the row is about the real-time mode.
-    if tag != "threaded" {
+    if tag != "realtime" {
         a.push("--sequential".into());
     }
     a.extend_from_slice(extra);
@@ -478,13 +490,25 @@ fn localisation_rows(
         timing,
     );
     rep.localisation.push(row);
-    // The same in the real-time mode: absolute localisation on its own thread, frames as fast
-    // as they are tracked (its Hz is the real-time figure; fixes may be skipped).
-    let (done, dir) = jointloc_run(d, out, runner, "threaded", &[], &plan.matcher)?;
+    // The same in the real-time mode: absolute localisation on its own thread, frames replayed
+    // at their timestamps as the camera delivers them (fixes due while it is busy are skipped).
+    let (done, dir) = jointloc_run(
+        d,
+        out,
+        runner,
+        "realtime",
+        &args!["--realtime", plan.replay_speed],
+        &plan.matcher,
+    )?;
     let timing_t = metrics::timing_medians(&dir.join("timing.json")).ok();
+    let speed = if plan.replay_speed == 1.0 {
+        "camera rate".to_string()
+    } else {
+        format!("{}× camera rate", plan.replay_speed)
+    };
     let (row, _) = loc_row(
         d,
-        format!("JointLoc threaded ({})", plan.matcher),
+        format!("JointLoc real time ({}, {speed})", plan.matcher),
         &done,
         &dir.join("trajectory.tum"),
         AlignMode::None,
@@ -713,15 +737,15 @@ fn ablations(
     } else {
         &[]
     };
+    let default_every = jointloc_system::JointLocConfig::default().fusion_every;
     for &k in frequencies {
-        let (done, dir) = jointloc_run(
-            d,
-            out,
-            runner,
-            &format!("every{k}"),
-            &args!["--fusion-every", k],
-            &plan.matcher,
-        )?;
+        // The default frequency is the localisation table's run.
+        let (tag, extra) = if k == default_every {
+            ("default".to_string(), Vec::new())
+        } else {
+            (format!("every{k}"), args!["--fusion-every", k].to_vec())
+        };
+        let (done, dir) = jointloc_run(d, out, runner, &tag, &extra, &plan.matcher)?;
         let timing = metrics::timing_medians(&dir.join("timing.json")).ok();
         let (row, _) = loc_row(
             d,
@@ -745,16 +769,18 @@ fn ablations(
         "matching",
         "adaptive",
     ];
+    let default_mode = jointloc_system::JointLocConfig::default().absloc.confidence;
     for m in modes.into_iter().filter(|_| plan.wants("confidence")) {
-        let tag = m.replace([':', '.'], "");
-        let (done, dir) = jointloc_run(
-            d,
-            out,
-            runner,
-            &format!("conf-{tag}"),
-            &args!["--confidence", m],
-            &plan.matcher,
-        )?;
+        let (tag, extra) =
+            if m.parse::<jointloc_absloc::ConfidenceMode>().ok() == Some(default_mode) {
+                ("default".to_string(), Vec::new())
+            } else {
+                (
+                    format!("conf-{}", m.replace([':', '.'], "")),
+                    args!["--confidence", m].to_vec(),
+                )
+            };
+        let (done, dir) = jointloc_run(d, out, runner, &tag, &extra, &plan.matcher)?;
         let (row, _) = loc_row(
             d,
             m.to_string(),
