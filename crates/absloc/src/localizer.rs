@@ -37,6 +37,11 @@ pub struct AbsLocConfig {
     pub area_prediction: bool,
     /// Search the whole map when the local search finds nothing.
     pub global_fallback: bool,
+    /// Within the local search, first match only the tiles that contain the predicted (or
+    /// last) position; the rest of the radius only when none of them gives a fix. The tile
+    /// with the most inliers contains the frame, so with a sound prediction the outer tiles
+    /// only cost time (7× on medium maps, where a low confidence opens the whole map).
+    pub inner_tiles_first: bool,
     /// Resample the frame to the map's GSD before matching (off: native scale, as the
     /// reference code). Measured better (see the crate README figures), so on by default.
     pub scale_normalisation: bool,
@@ -77,6 +82,7 @@ impl Default for AbsLocConfig {
             confidence: ConfidenceMode::Adaptive,
             area_prediction: true,
             global_fallback: true,
+            inner_tiles_first: true,
             scale_normalisation: true,
             rotation_hypotheses: 8,
             use_last_heading: true,
@@ -421,6 +427,10 @@ impl AbsLocalizer {
         let first_angles = heading.map_or_else(|| sweep.clone(), |h| vec![h]);
 
         let all: Vec<usize> = self.tiles.all(prior.position.map(|p| (p[0], p[1])));
+        let predicted = prior
+            .position
+            .map(|[x, y]| (x, y))
+            .or(self.state.last_position);
         let local = if !self.config.area_prediction {
             None
         } else if let Some([x, y]) = prior.position {
@@ -439,17 +449,49 @@ impl AbsLocalizer {
         let mut best_rejection: Option<Rejection> = None;
         let local_is_all = local.as_ref().is_none_or(|l| l.len() >= all.len());
         let first = local.clone().unwrap_or_else(|| all.clone());
-        let mut found = self.search(
-            frame,
-            &first,
-            &first_angles,
-            scale,
-            expected,
-            true,
-            &mut views,
-            &mut searched,
-            &mut best_rejection,
-        )?;
+        // Inner tiles (those containing the predicted position) first, then the rest.
+        let inner = match (&local, predicted) {
+            (Some(l), Some((x, y))) if self.config.inner_tiles_first => {
+                self.tiles.containing(l, x, y)
+            }
+            _ => Vec::new(),
+        };
+        let mut found = None;
+        if !inner.is_empty() && inner.len() < first.len() {
+            found = self.search(
+                frame,
+                &inner,
+                &first_angles,
+                scale,
+                expected,
+                true,
+                &mut views,
+                &mut searched,
+                &mut best_rejection,
+            )?;
+        }
+        let outer: Vec<usize> = if inner.len() < first.len() {
+            first
+                .iter()
+                .copied()
+                .filter(|t| !inner.contains(t))
+                .collect()
+        } else {
+            first.clone()
+        };
+        if found.is_none() && !outer.is_empty() {
+            found = self.search(
+                frame,
+                &outer,
+                &first_angles,
+                scale,
+                expected,
+                true,
+                &mut views,
+                &mut searched,
+                &mut best_rejection,
+            )?;
+        }
         let mut global = local_is_all;
         // Retry everywhere, with the rotation sweep unless the caller fixed the heading; not
         // when that is exactly what was just searched.

@@ -445,6 +445,21 @@ impl MapTiles {
         }
     }
 
+    /// The tiles of `list` whose extent contains world `(x, y)` (at most 4 with overlap 0.5),
+    /// in `list`'s order.
+    pub fn containing(&self, list: &[usize], x: f64, y: f64) -> Vec<usize> {
+        let (u, v) = self.world_to_pixel(x, y);
+        list.iter()
+            .copied()
+            .filter(|&i| {
+                let t = &self.tiles[i];
+                let (x0, y0) = (t.x as f64, t.y as f64);
+                (x0..x0 + self.tile_width as f64).contains(&u)
+                    && (y0..y0 + self.tile_height as f64).contains(&v)
+            })
+            .collect()
+    }
+
     /// Every tile, nearest to world `(x, y)` first when a point is given.
     pub fn all(&self, near: Option<(f64, f64)>) -> Vec<usize> {
         let mut all: Vec<usize> = (0..self.tiles.len()).collect();
@@ -599,6 +614,31 @@ mod tests {
             assert!(around.contains(&best) && around.len() <= 9);
         }
         assert_eq!(m.all(None).len(), 35);
+    }
+
+    #[test]
+    fn containing_tiles_are_those_over_the_point() {
+        let m = grid_map(400, 300);
+        let all = m.all(None);
+        // Interior point at stride 50: the four overlapping tiles; an edge point: fewer.
+        for ((u, v), n) in [((205.0, 140.0), 4), ((10.0, 10.0), 1), ((205.0, 10.0), 2)] {
+            let (x, y) = m.pixel_to_world(u, v);
+            let inside = m.containing(&all, x, y);
+            assert_eq!(inside.len(), n, "({u}, {v}): {inside:?}");
+            for &i in &inside {
+                let t = m.tiles()[i];
+                assert!((t.x as f64..(t.x + 100) as f64).contains(&u));
+                assert!((t.y as f64..(t.y + 100) as f64).contains(&v));
+            }
+            // Restricted to the given list, in its order.
+            let near = m.around_world(x, y, 1);
+            let sub = m.containing(&near, x, y);
+            assert!(sub.windows(2).all(|w| {
+                near.iter().position(|&a| a == w[0]) < near.iter().position(|&a| a == w[1])
+            }));
+        }
+        let (x, y) = m.pixel_to_world(-50.0, 10.0);
+        assert!(m.containing(&all, x, y).is_empty());
     }
 
     #[test]
