@@ -5,8 +5,10 @@
 use std::process::{Command, Output};
 
 fn jointloc(args: &[&str]) -> Output {
+    // Outside any checkout: the report's commit must come from the build.
     Command::new(env!("CARGO_BIN_EXE_jointloc"))
         .args(args)
+        .current_dir(std::env::temp_dir())
         .output()
         .expect("running jointloc")
 }
@@ -55,6 +57,11 @@ fn writes_the_report_and_refuses_to_replace_it() {
         "2 cores",
     ] {
         assert!(md.contains(needle), "missing {needle:?} in\n{md}");
+    }
+    // The commit is the one the binary was built from (it runs in the temporary folder).
+    let built = env!("JOINTLOC_BUILD_COMMIT");
+    if !built.is_empty() {
+        assert!(md.contains(&format!("commit `{built}`")), "{md}");
     }
     let json: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();

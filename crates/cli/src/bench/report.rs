@@ -153,8 +153,11 @@ impl Report {
             "Cells are mean ± std over seeds (a single value when there is one seed). APE is the \
              translation error in metres computed as evo does (`jointloc eval`). JointLoc rows are \
              evaluated **without alignment** (its output is in the world frame); VO-only rows are \
-             Sim(3)-aligned; absolute-only rows are 2-D errors of the fixes. A failed run is a row \
-             that says why, as the paper's \"-\". Full data: `report.json`; logs of every run: `logs/`.\n"
+             Sim(3)-aligned; absolute-only rows are 2-D errors of the fixes. Hz of a JointLoc row is \
+             what its frame loop sustains (frames over the time spent processing them; the \
+             real-time row replays frames at their timestamps, and its waits do not count); of a \
+             VO or absolute-only row, frames per second of the process's wall time. A failed run is a \
+             row that says why, as the paper's \"-\". Full data: `report.json`; logs of every run: `logs/`.\n"
         );
         self.matching_md(&mut s);
         loc_md(
@@ -402,7 +405,12 @@ fn commands_md<'a>(s: &mut String, rows: impl Iterator<Item = (&'a DatasetKey, &
     let _ = writeln!(s, "```\n</details>\n");
 }
 
+/// The commit the binary was built from; else the working directory's (a build without git).
 fn git_commit() -> String {
+    let built = env!("JOINTLOC_BUILD_COMMIT");
+    if !built.is_empty() {
+        return built.to_string();
+    }
     std::process::Command::new("git")
         .args(["rev-parse", "--short", "HEAD"])
         .output()
