@@ -70,26 +70,39 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let text =
         std::fs::read_to_string(&json).with_context(|| format!("reading {}", json.display()))?;
     let report: serde_json::Value = serde_json::from_str(&text)?;
+    let rows: Vec<&serde_json::Value> = report["localisation"]
+        .as_array()
+        .into_iter()
+        .flatten()
+        .collect();
+    let width = rows
+        .iter()
+        .filter_map(|r| r["method"].as_str())
+        .map(|m| m.chars().count())
+        .max()
+        .unwrap_or(6);
     println!(
-        "\n{:<50} {:>9} {:>9} {:>7}",
+        "\n{:<width$} {:>9} {:>9} {:>7}",
         "method", "APE rmse", "APE max", "Hz"
     );
-    for row in report["localisation"].as_array().into_iter().flatten() {
+    for row in rows {
         let method = row["method"].as_str().unwrap_or("?");
         match (row["stats"]["rmse"].as_f64(), row["stats"]["max"].as_f64()) {
             (Some(rmse), Some(max)) => println!(
-                "{method:<50} {rmse:>8.3}m {max:>8.3}m {:>7.1}",
+                "{method:<width$} {rmse:>8.3}m {max:>8.3}m {:>7.1}",
                 row["hz"].as_f64().unwrap_or(f64::NAN)
             ),
             _ => println!(
-                "{method:<50} failed: {}",
+                "{method:<width$} failed: {}",
                 row["failed"].as_str().unwrap_or("?")
             ),
         }
     }
     println!(
         "\nJointLoc is evaluated in the world frame without alignment, VO only after a Sim(3) \
-         alignment, absolute only as 2-D fix errors.\nReport, trajectories and figures: {}",
+         alignment, absolute only as 2-D fix errors. Hz: for JointLoc what its frame loop \
+         sustains (the real-time row replays the frames at the camera's rate, 5 Hz); for VO and \
+         absolute only, frames per second of wall time.\nReport, trajectories and figures: {}",
         args.out.join("report.md").display()
     );
     Ok(())
