@@ -71,6 +71,7 @@ fn fuses_into_the_world_frame_and_refuses_to_overwrite() {
         );
         for f in [
             "trajectory.tum",
+            "trajectory-final.tum",
             "keyframes.tum",
             "fixes.txt",
             "timing.json",
@@ -93,6 +94,14 @@ fn fuses_into_the_world_frame_and_refuses_to_overwrite() {
         // elevation model, so z = DEM + altimeter; a few decimetres at most.
         let rmse = summary["ape_translation"]["rmse"].as_f64().unwrap();
         assert!(rmse < 0.3, "seed {seed}: APE rmse {rmse}\n{stdout}");
+        // The trajectory as known at the end: every tracked frame, world frame, as good.
+        let fin = &summary["ape_translation_final"];
+        assert!(fin["count"].as_u64().unwrap() >= world, "{stdout}");
+        let rmse_final = fin["rmse"].as_f64().unwrap();
+        assert!(
+            rmse_final < 0.3,
+            "seed {seed}: final APE rmse {rmse_final}\n{stdout}"
+        );
         // Frames before the alignment are flagged, not invented.
         let traj = std::fs::read_to_string(out.join("trajectory.tum")).unwrap();
         let flagged = traj
