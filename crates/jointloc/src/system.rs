@@ -143,6 +143,9 @@ pub struct JointLoc {
     altimeter: Vec<(f64, f64)>,
     next_index: usize,
     last_world_pose: Option<CameraToWorld>,
+    /// Time of the first frame reported in the world frame: the outputs written at the end
+    /// start there too.
+    first_world_timestamp: Option<f64>,
 }
 
 impl JointLoc {
@@ -196,6 +199,7 @@ impl JointLoc {
             altimeter: Vec::new(),
             next_index: 0,
             last_world_pose: None,
+            first_world_timestamp: None,
         })
     }
 
@@ -290,6 +294,7 @@ impl JointLoc {
         };
         if world_pose.is_some() {
             self.last_world_pose = world_pose;
+            self.first_world_timestamp.get_or_insert(timestamp);
         }
         self.timing
             .frame_ms
@@ -527,13 +532,17 @@ impl JointLoc {
     }
 
     /// The world-frame keyframe trajectory, known as a whole at the end (empty before the
-    /// first alignment); see [`JointLoc::final_trajectory`] for how it is aligned.
+    /// first alignment); see [`JointLoc::final_trajectory`] for how it is aligned and where it
+    /// starts.
     pub fn keyframe_trajectory(&self) -> Result<Option<jointloc_geometry::trajectory::Trajectory>> {
         self.offline_world(&self.slam.keyframe_trajectory()?)
     }
 
     /// Every tracked frame's world pose as known at the end, through the keyframes' final
-    /// poses (ORB-SLAM2's saved trajectory; `trajectory.tum` is what was known online). Each
+    /// poses (ORB-SLAM2's saved trajectory; `trajectory.tum` is what was known online), from
+    /// the first frame reported in the world frame on: the frames of the two-view
+    /// initialisation before it are left out (up to 1 m off after the map settled, on
+    /// crater-easy-s103), so both files cover the same frames. Each
     /// pose goes through the alignment fitted to the `alignment_window` fixes nearest to it in
     /// time: the latest alignment alone fits the recent fixes, and SLAM drift since an early
     /// frame would carry into it. z is altimeter-aided as online, over a window centred on the
@@ -546,7 +555,16 @@ impl JointLoc {
         &self,
         slam: &jointloc_geometry::trajectory::Trajectory,
     ) -> Result<Option<jointloc_geometry::trajectory::Trajectory>> {
-        if self.alignment.is_none() {
+        let (Some(_), Some(t0)) = (&self.alignment, self.first_world_timestamp) else {
+            return Ok(None);
+        };
+        let keep = slam.timestamps.partition_point(|&t| t < t0);
+        let slam = jointloc_geometry::trajectory::Trajectory::new(
+            slam.timestamps[keep..].to_vec(),
+            slam.poses[keep..].to_vec(),
+        )
+        .map_err(jointloc_slam::error::SlamError::from)?;
+        if slam.is_empty() {
             return Ok(None);
         }
         let frames = self.slam.trajectory()?;
@@ -558,7 +576,7 @@ impl JointLoc {
                 .map(|(&ts, p)| aligner.transform(ts, p))
                 .collect()
         };
-        let mut poses = world(slam);
+        let mut poses = world(&slam);
         let frame_poses = world(&frames);
         let readings: Vec<Option<f64>> = frames
             .timestamps
