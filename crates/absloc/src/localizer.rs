@@ -456,33 +456,21 @@ impl AbsLocalizer {
             }
             _ => Vec::new(),
         };
-        let mut found = None;
-        if !inner.is_empty() && inner.len() < first.len() {
-            found = self.search(
-                frame,
-                &inner,
-                &first_angles,
-                scale,
-                expected,
-                true,
-                &mut views,
-                &mut searched,
-                &mut best_rejection,
-            )?;
-        }
-        let outer: Vec<usize> = if inner.len() < first.len() {
-            first
+        let passes: Vec<Vec<usize>> = if !inner.is_empty() && inner.len() < first.len() {
+            let outer = first
                 .iter()
                 .copied()
                 .filter(|t| !inner.contains(t))
-                .collect()
+                .collect();
+            vec![inner, outer]
         } else {
-            first.clone()
+            vec![first]
         };
-        if found.is_none() && !outer.is_empty() {
+        let mut found = None;
+        for tiles in passes.iter().filter(|p| !p.is_empty()) {
             found = self.search(
                 frame,
-                &outer,
+                tiles,
                 &first_angles,
                 scale,
                 expected,
@@ -491,6 +479,9 @@ impl AbsLocalizer {
                 &mut searched,
                 &mut best_rejection,
             )?;
+            if found.is_some() {
+                break;
+            }
         }
         let mut global = local_is_all;
         // Retry everywhere, with the rotation sweep unless the caller fixed the heading; not

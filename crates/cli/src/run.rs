@@ -309,14 +309,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     if gt_path.exists() && written >= 3 {
         let gt = Trajectory::read_tum(&gt_path, &TumOptions::default())?;
         let est = Trajectory::read_tum(&traj_path, &TumOptions::default())?;
-        let report = evaluate(
-            &gt,
-            &est,
-            &EvalConfig {
-                align: AlignMode::None,
-                ..Default::default()
-            },
-        )?;
+        let no_alignment = EvalConfig {
+            align: AlignMode::None,
+            ..Default::default()
+        };
+        let report = evaluate(&gt, &est, &no_alignment)?;
         let st = report.ape_translation.stats;
         println!(
             "APE (world frame, no alignment, {} poses): rmse {:.3} m, mean {:.3}, median {:.3}, std {:.3}, max {:.3}",
@@ -326,14 +323,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         if let Some(fin) = &final_traj
             && fin.len() >= 3
         {
-            let report = evaluate(
-                &gt,
-                fin,
-                &EvalConfig {
-                    align: AlignMode::None,
-                    ..Default::default()
-                },
-            )?;
+            let report = evaluate(&gt, fin, &no_alignment)?;
             let st = report.ape_translation.stats;
             println!(
                 "APE of trajectory-final.tum (as known at the end, {} poses): rmse {:.3} m, mean {:.3}, max {:.3}",

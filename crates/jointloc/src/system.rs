@@ -104,6 +104,17 @@ struct Tie {
     slam_ground: Point3<f64>,
 }
 
+impl Tie {
+    /// SLAM positions from the keyframe's current pose (kept when it was culled).
+    fn refresh(&mut self, map: &jointloc_slam::map::Map) {
+        if let Some(kf) = map.keyframe(self.keyframe) {
+            let t_wc = kf.pose.0.inverse();
+            self.slam_camera = t_wc.transform_point(&self.centre_in_kf);
+            self.slam_ground = t_wc.transform_point(&self.ground_in_kf);
+        }
+    }
+}
+
 /// The state at the frame an absolute search was started for, so its fix can be tied when it
 /// arrives: the frame's SLAM pose and the then current keyframe with its pose then.
 #[derive(Debug, Clone)]
@@ -450,11 +461,7 @@ impl JointLoc {
     fn refit(&mut self) {
         let map = self.slam.map();
         for t in &mut self.ties {
-            if let Some(kf) = map.keyframe(t.keyframe) {
-                let t_wc = kf.pose.0.inverse();
-                t.slam_camera = t_wc.transform_point(&t.centre_in_kf);
-                t.slam_ground = t_wc.transform_point(&t.ground_in_kf);
-            }
+            t.refresh(map);
         }
         let first = match self.config.alignment_window {
             0 => 0,
@@ -535,7 +542,7 @@ impl JointLoc {
     /// first alignment); see [`JointLoc::final_trajectory`] for how it is aligned and where it
     /// starts.
     pub fn keyframe_trajectory(&self) -> Result<Option<jointloc_geometry::trajectory::Trajectory>> {
-        self.offline_world(&self.slam.keyframe_trajectory()?)
+        self.offline_world(&self.slam.keyframe_trajectory()?, &self.slam.trajectory()?)
     }
 
     /// Every tracked frame's world pose as known at the end, through the keyframes' final
@@ -548,12 +555,16 @@ impl JointLoc {
     /// frame would carry into it. z is altimeter-aided as online, over a window centred on the
     /// pose, from every frame's reading.
     pub fn final_trajectory(&self) -> Result<Option<jointloc_geometry::trajectory::Trajectory>> {
-        self.offline_world(&self.slam.trajectory()?)
+        let frames = self.slam.trajectory()?;
+        self.offline_world(&frames, &frames)
     }
 
+    /// `slam` in the world frame as known at the end; `frames`: the SLAM's frame trajectory,
+    /// whose altimeter readings aid z.
     fn offline_world(
         &self,
         slam: &jointloc_geometry::trajectory::Trajectory,
+        frames: &jointloc_geometry::trajectory::Trajectory,
     ) -> Result<Option<jointloc_geometry::trajectory::Trajectory>> {
         let (Some(_), Some(t0)) = (&self.alignment, self.first_world_timestamp) else {
             return Ok(None);
@@ -567,7 +578,6 @@ impl JointLoc {
         if slam.is_empty() {
             return Ok(None);
         }
-        let frames = self.slam.trajectory()?;
         let mut aligner = self.centred_aligner();
         let mut world = |t: &jointloc_geometry::trajectory::Trajectory| -> Vec<CameraToWorld> {
             t.timestamps
@@ -577,7 +587,7 @@ impl JointLoc {
                 .collect()
         };
         let mut poses = world(&slam);
-        let frame_poses = world(&frames);
+        let frame_poses = world(frames);
         let readings: Vec<Option<f64>> = frames
             .timestamps
             .iter()
@@ -615,11 +625,7 @@ impl JointLoc {
             .iter()
             .map(|tie| {
                 let mut tie = tie.clone();
-                if let Some(kf) = map.keyframe(tie.keyframe) {
-                    let t_wc = kf.pose.0.inverse();
-                    tie.slam_camera = t_wc.transform_point(&tie.centre_in_kf);
-                    tie.slam_ground = t_wc.transform_point(&tie.ground_in_kf);
-                }
+                tie.refresh(map);
                 (self.fixes[tie.record].timestamp, tie)
             })
             .collect();
