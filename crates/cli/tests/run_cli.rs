@@ -332,6 +332,46 @@ fn fuses_into_the_world_frame_and_refuses_to_overwrite() {
             rmse_f < 2.0 * rmse + 0.1,
             "seed {seed}: {rmse_f} with wrong fixes vs {rmse}\n{stdout}"
         );
+
+        // A wrong first fix (position and heading), before any alignment exists to reject
+        // it: it steers the next searches and would make a two-fix alignment metres off.
+        let first = dir.path().join("first-wrong");
+        let cfg = dir.path().join("first-wrong.toml");
+        std::fs::write(&cfg, "[faults]\nwrong_first_fixes = 1\n").unwrap();
+        let run = jointloc(&[
+            "run",
+            "--dataset",
+            s(&data),
+            "--out",
+            s(&first),
+            "--matcher",
+            "orb",
+            "--sequential",
+            "--config",
+            s(&cfg),
+        ]);
+        let stdout = String::from_utf8_lossy(&run.stdout).into_owned();
+        assert!(run.status.success(), "{stdout}");
+        let w: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(first.join("summary.json")).unwrap())
+                .unwrap();
+        assert_eq!(w["fixes_injected_wrong"].as_u64(), Some(1), "{stdout}");
+        let fixes = std::fs::read_to_string(first.join("fixes.txt")).unwrap();
+        let first_fix: Vec<&str> = fixes
+            .lines()
+            .find(|l| !l.starts_with('#'))
+            .unwrap()
+            .split_whitespace()
+            .collect();
+        assert_eq!((first_fix[15], first_fix[14]), ("1", "0"), "{fixes}");
+        // Geo-referenced at most two fixes (20 frames) later than without it, as accurate.
+        let world_w = w["world_poses"].as_u64().unwrap();
+        assert!(world_w + 20 >= world, "seed {seed}: {world_w} vs {world}");
+        let rmse_w = w["ape_translation"]["rmse"].as_f64().unwrap();
+        assert!(
+            rmse_w < 1.5 * rmse + 0.05,
+            "seed {seed}: {rmse_w} with a wrong first fix vs {rmse}\n{stdout}"
+        );
     }
 }
 

@@ -15,7 +15,9 @@ pub struct JointLocConfig {
     pub fusion_every: usize,
     /// Fixes with a lower confidence are not used (a failed search has w = 0).
     pub min_confidence: f64,
-    /// SLAM→world alignment: fixes needed before poses are geo-referenced.
+    /// SLAM→world alignment: consistent fixes needed before poses are geo-referenced. Two
+    /// always agree (a similarity fits any two), so with 2 one wrong fix at the start makes a
+    /// wrong alignment; from 3 on, a wrong fix is out-voted.
     pub min_fixes: usize,
     /// Alignment RANSAC inlier threshold, metres (world frame).
     pub inlier_threshold_m: f64,
@@ -38,6 +40,10 @@ pub struct JointLocConfig {
     /// absolute search starts from the tiles nearest to it instead of the whole map (a
     /// whole-map search with 8 rotation hypotheses takes seconds). `None`: whole map.
     pub start_position: Option<[f64; 2]>,
+    /// After this many absolute searches failed in a row, the search prior carries no heading
+    /// and the localiser sweeps rotations again (0: never give it a heading). A heading from
+    /// the fused pose makes a search 8× cheaper, but a wrong one makes every search fail.
+    pub sweep_after_failures: usize,
     /// Seed of the alignment RANSAC.
     pub seed: u64,
     pub slam: SystemConfig,
@@ -51,13 +57,14 @@ impl Default for JointLocConfig {
         Self {
             fusion_every: 10,
             min_confidence: 0.05,
-            min_fixes: 2,
+            min_fixes: 3,
             inlier_threshold_m: 2.0,
             ransac_iterations: 200,
             nadir_weight: 0.3,
             alignment_window: 20,
             altitude_window_s: 5.0,
             start_position: None,
+            sweep_after_failures: 2,
             seed: 0,
             slam: SystemConfig::default(),
             absloc: AbsLocConfig::default(),

@@ -13,8 +13,12 @@ use crate::error::{JointLocError, Result};
 #[serde(default, deny_unknown_fields)]
 pub struct FaultConfig {
     /// Fraction of fixes whose position is replaced by a wrong one (0: none). The confidence
-    /// is kept, so wrong fixes look like real ones.
+    /// is kept, so wrong fixes look like real ones; the heading is drawn uniformly, as a
+    /// match on the wrong tile gives.
     pub wrong_fix_fraction: f64,
+    /// The first this-many fixes found are made wrong as well: a wrong fix at the start, the
+    /// case where no alignment exists yet to reject it (a self-similar take-off area).
+    pub wrong_first_fixes: usize,
     /// Horizontal offset of a wrong fix, metres: uniform in [min, max], direction uniform.
     pub wrong_fix_min_m: f64,
     pub wrong_fix_max_m: f64,
@@ -28,6 +32,7 @@ impl Default for FaultConfig {
     fn default() -> Self {
         Self {
             wrong_fix_fraction: 0.0,
+            wrong_first_fixes: 0,
             wrong_fix_min_m: 10.0,
             wrong_fix_max_m: 50.0,
             outage_start_s: None,
@@ -79,15 +84,14 @@ impl FaultConfig {
             .is_some_and(|s| timestamp >= s && timestamp < s + self.outage_duration_s)
     }
 
-    /// The horizontal offset to add to the fix of `frame`, if it is to be wrong.
-    pub fn wrong_offset(&self, frame: usize) -> Option<[f64; 2]> {
-        if self.wrong_fix_fraction <= 0.0 {
-            return None;
-        }
+    /// How to make the fix of `frame` wrong, if it is to be: `ordinal` counts the fixes found
+    /// before it (for [`Self::wrong_first_fixes`]).
+    pub fn wrong_fix(&self, frame: usize, ordinal: usize) -> Option<WrongFix> {
         let mut rng = ChaCha8Rng::seed_from_u64(
             self.seed ^ (frame as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15),
         );
-        if rng.random::<f64>() >= self.wrong_fix_fraction {
+        let drawn = rng.random::<f64>() < self.wrong_fix_fraction;
+        if !(drawn || ordinal < self.wrong_first_fixes) {
             return None;
         }
         let d = if self.wrong_fix_max_m > self.wrong_fix_min_m {
@@ -96,8 +100,20 @@ impl FaultConfig {
             self.wrong_fix_min_m
         };
         let a = rng.random_range(0.0..std::f64::consts::TAU);
-        Some([d * a.cos(), d * a.sin()])
+        Some(WrongFix {
+            offset: [d * a.cos(), d * a.sin()],
+            heading: rng.random_range(0.0..std::f64::consts::TAU),
+        })
     }
+}
+
+/// What replaces a fix's position and heading.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct WrongFix {
+    /// Added to the fix's (x, y), metres.
+    pub offset: [f64; 2],
+    /// Replaces the fix's heading, radians.
+    pub heading: f64,
 }
 
 #[cfg(test)]
@@ -112,7 +128,9 @@ mod tests {
                 seed,
                 ..Default::default()
             };
-            let offsets: Vec<[f64; 2]> = (0..2000).filter_map(|i| f.wrong_offset(i)).collect();
+            let offsets: Vec<[f64; 2]> = (0..2000)
+                .filter_map(|i| f.wrong_fix(i, 100).map(|w| w.offset))
+                .collect();
             let rate = offsets.len() as f64 / 2000.0;
             assert!((rate - 0.2).abs() < 0.03, "seed {seed}: rate {rate}");
             for o in &offsets {
@@ -120,9 +138,16 @@ mod tests {
                 assert!((10.0..=50.0).contains(&d), "{d}");
             }
             // Repeatable per frame.
-            assert_eq!(f.wrong_offset(17), f.wrong_offset(17));
+            assert_eq!(f.wrong_fix(17, 100), f.wrong_fix(17, 100));
         }
-        assert_eq!(FaultConfig::default().wrong_offset(3), None);
+        assert_eq!(FaultConfig::default().wrong_fix(3, 0), None);
+        // The first fixes, whatever the draw.
+        let first = FaultConfig {
+            wrong_first_fixes: 2,
+            ..Default::default()
+        };
+        assert!(first.wrong_fix(3, 0).is_some() && first.wrong_fix(40, 1).is_some());
+        assert_eq!(first.wrong_fix(50, 2), None);
     }
 
     #[test]

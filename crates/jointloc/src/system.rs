@@ -143,10 +143,13 @@ pub struct JointLoc {
     fixes: Vec<FixRecord>,
     ties: Vec<Tie>,
     alignment: Option<SlamToWorld>,
-    /// Before the alignment exists: SLAM→world from the first fix alone (scale 1, the SLAM is
+    /// Before the alignment exists: SLAM→world from the latest fix alone (scale 1, the SLAM is
     /// metric from the altimeter; rotation from the fix's heading and a nadir camera), used
     /// only to predict where to search next, never to report a pose.
     provisional: Option<Sim3>,
+    /// Absolute searches failed since the last fix (see
+    /// [`JointLocConfig::sweep_after_failures`]).
+    failures_in_a_row: usize,
     timing: FusionTiming,
     altitude: AltitudeFilter,
     /// Every frame's (timestamp, altimeter reading), for the keyframe trajectory's z
@@ -205,6 +208,7 @@ impl JointLoc {
             ties: Vec::new(),
             alignment: None,
             provisional: None,
+            failures_in_a_row: 0,
             timing: FusionTiming::default(),
             altitude,
             altimeter: Vec::new(),
@@ -353,19 +357,26 @@ impl JointLoc {
     fn apply(&mut self, submitted: &Submitted, outcome: &Outcome) {
         self.timing.absolute_ms.push(outcome.ms());
         let Outcome::Fix(fix) = outcome else {
+            self.failures_in_a_row += 1;
             return;
         };
+        self.failures_in_a_row = 0;
         let t0 = Instant::now();
         let mut fix = fix.clone();
-        let offset = self.config.faults.wrong_offset(submitted.frame);
-        if let Some([dx, dy]) = offset {
-            fix.position[0] += dx;
-            fix.position[1] += dy;
+        let wrong = self
+            .config
+            .faults
+            .wrong_fix(submitted.frame, self.fixes.len());
+        if let Some(w) = wrong {
+            fix.position[0] += w.offset[0];
+            fix.position[1] += w.offset[1];
+            fix.heading = w.heading;
         }
         let used = self.tie_fix(&fix, submitted);
+        // Until the alignment exists, the latest usable fix predicts the next search: a wrong
+        // first fix must not steer every search after it.
         if used
             && self.alignment.is_none()
-            && self.provisional.is_none()
             && let Some(pose) = submitted.pose
         {
             let rotation = fix.orientation() * pose.rotation().inverse();
@@ -389,7 +400,7 @@ impl JointLoc {
             global: fix.global,
             used,
             inlier: false,
-            injected: offset.is_some(),
+            injected: wrong.is_some(),
             ms: fix.ms,
         });
         if used {
@@ -402,16 +413,21 @@ impl JointLoc {
 
     /// The search prior from the fused pose: position and heading of the last world pose;
     /// before the alignment, the current SLAM pose through the provisional one-fix similarity.
+    /// After [`JointLocConfig::sweep_after_failures`] failed searches in a row the heading is
+    /// left out, so the localiser sweeps rotations: the predicted heading may be what is wrong
+    /// (a wrong fix or alignment), and with it every search would fail.
     fn prior(&self, slam_pose: Option<CameraToWorld>) -> Prior {
         let predicted = match (&self.last_world_pose, &self.provisional, slam_pose) {
             (Some(p), _, _) => Some(*p),
             (None, Some(s), Some(p)) => Some(s.transform_pose(&p)),
             _ => None,
         };
+        let trust_heading = self.failures_in_a_row < self.config.sweep_after_failures;
         match predicted {
             Some(p) => Prior {
                 position: Some([p.centre().x, p.centre().y]),
-                heading: Some(heading_from_rotation(&p.rotation().to_rotation_matrix())),
+                heading: trust_heading
+                    .then(|| heading_from_rotation(&p.rotation().to_rotation_matrix())),
             },
             // Nothing tracked and fixed yet: the take-off position, if the user gave one.
             None => Prior {
