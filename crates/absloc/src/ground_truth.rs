@@ -26,6 +26,46 @@ impl TerrainHeights for jointloc_sim::Terrain {
     }
 }
 
+impl TerrainHeights for crate::tiles::Ground {
+    fn height_at(&self, x: f64, y: f64) -> f64 {
+        crate::tiles::Ground::height_at(self, x, y)
+    }
+}
+
+/// World `(x, y)` where the optical axis of `pose` meets `terrain`: what a fix measures (the
+/// map point under the image centre). It differs from the camera's `(x, y)` by the height
+/// times the tilt, 9 cm for 0.5° at 10 m. `None` when the axis does not point down or the
+/// intersection does not settle.
+pub fn optical_axis_ground_point(
+    pose: &CameraToWorld,
+    terrain: &dyn TerrainHeights,
+) -> Option<(f64, f64)> {
+    let c = pose.centre();
+    let axis = pose.rotation() * Vector3::z();
+    if axis.z > -1e-3 {
+        return None;
+    }
+    // Range along the axis to the terrain: fixed point of d = (h(C + d·a) − C.z) / a.z, a
+    // contraction for any slope under 1 / tan(tilt).
+    let range = |d: f64| {
+        let p = c + axis * d;
+        (terrain.height_at(p.x, p.y) - c.z) / axis.z
+    };
+    let mut d = range(0.0);
+    for _ in 0..50 {
+        let next = range(d);
+        if !next.is_finite() || next <= 0.0 {
+            return None;
+        }
+        if (next - d).abs() < 1e-9 {
+            let p = c + axis * next;
+            return Some((p.x, p.y));
+        }
+        d = next;
+    }
+    None
+}
+
 /// The homography taking frame pixels to map pixels for ground plane `z = ground_z`.
 pub fn plane_homography(
     pose: &CameraToWorld,
@@ -187,6 +227,42 @@ mod tests {
                 - std::f64::consts::PI;
             assert!(d.abs() < 1e-9, "yaw {yaw}: {got} vs {want}");
         }
+    }
+
+    #[test]
+    fn optical_axis_meets_the_terrain() {
+        struct Slope;
+        impl TerrainHeights for Slope {
+            fn height_at(&self, x: f64, _: f64) -> f64 {
+                0.3 * x
+            }
+        }
+        // Nadir: straight below, on any terrain.
+        let pose = nadir(4.0, -3.0, 10.0, 0.8);
+        let (x, y) = optical_axis_ground_point(&pose, &Slope).unwrap();
+        assert!((x - 4.0).abs() < 1e-9 && (y + 3.0).abs() < 1e-9, "{x} {y}");
+        // Tilted 5° about the world x axis over flat ground: offset 10 m × tan 5° in y.
+        let tilt = UnitQuaternion::from_axis_angle(&Vector3::x_axis(), 5f64.to_radians());
+        let tilted = CameraToWorld::from_rotation_translation(
+            tilt * pose.rotation(),
+            Vector3::new(4.0, -3.0, 10.0),
+        );
+        let (x, y) = optical_axis_ground_point(&tilted, &Flat(0.0)).unwrap();
+        let axis = tilted.rotation() * Vector3::z();
+        let want = 10.0 * 5f64.to_radians().tan();
+        assert!((x - 4.0).abs() < 1e-9, "{x}");
+        assert!(((y + 3.0).abs() - want).abs() < 1e-9, "{y}");
+        assert!((y + 3.0).signum() == axis.y.signum());
+        // On the slope the point is on both the ray and the terrain.
+        let (x, y) = optical_axis_ground_point(&tilted, &Slope).unwrap();
+        let d = (0.3 * x - 10.0) / axis.z;
+        assert!((4.0 + d * axis.x - x).abs() < 1e-6 && (-3.0 + d * axis.y - y).abs() < 1e-6);
+        // Looking up: none.
+        let up = CameraToWorld::from_rotation_translation(
+            UnitQuaternion::identity(),
+            Vector3::new(0.0, 0.0, 10.0),
+        );
+        assert_eq!(optical_axis_ground_point(&up, &Flat(0.0)), None);
     }
 
     #[test]
