@@ -40,10 +40,14 @@ pub struct JointLocConfig {
     /// absolute search starts from the tiles nearest to it instead of the whole map (a
     /// whole-map search with 8 rotation hypotheses takes seconds). `None`: whole map.
     pub start_position: Option<[f64; 2]>,
-    /// After this many absolute searches failed in a row, the search prior carries no heading
-    /// and the localiser sweeps rotations again (0: never give it a heading). A heading from
-    /// the fused pose makes a search 8× cheaper, but a wrong one makes every search fail.
+    /// Before the alignment exists, every this-many-th absolute search of a failing streak
+    /// goes without a heading, so the localiser sweeps rotations (0: never give it a heading).
+    /// The heading then comes from one fix, which may be wrong, and with it every search would
+    /// fail; a sweep costs 8× a search with a heading.
     pub sweep_after_failures: usize,
+    /// The same once geo-referenced: the heading then comes from at least `min_fixes`
+    /// consistent fixes and the SLAM, and a failure is the matcher's, so sweeps are rare.
+    pub sweep_after_failures_aligned: usize,
     /// Seed of the alignment RANSAC.
     pub seed: u64,
     pub slam: SystemConfig,
@@ -65,6 +69,7 @@ impl Default for JointLocConfig {
             altitude_window_s: 5.0,
             start_position: None,
             sweep_after_failures: 2,
+            sweep_after_failures_aligned: 10,
             seed: 0,
             slam: SystemConfig::default(),
             absloc: AbsLocConfig::default(),

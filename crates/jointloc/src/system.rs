@@ -413,16 +413,23 @@ impl JointLoc {
 
     /// The search prior from the fused pose: position and heading of the last world pose;
     /// before the alignment, the current SLAM pose through the provisional one-fix similarity.
-    /// After [`JointLocConfig::sweep_after_failures`] failed searches in a row the heading is
-    /// left out, so the localiser sweeps rotations: the predicted heading may be what is wrong
-    /// (a wrong fix or alignment), and with it every search would fail.
+    /// Every [`JointLocConfig::sweep_after_failures`]-th search of a failing streak (or
+    /// [`JointLocConfig::sweep_after_failures_aligned`]-th once geo-referenced) leaves the
+    /// heading out, so the localiser sweeps rotations: the predicted heading may be what is
+    /// wrong (a wrong fix or alignment), and with it every search would fail.
     fn prior(&self, slam_pose: Option<CameraToWorld>) -> Prior {
         let predicted = match (&self.last_world_pose, &self.provisional, slam_pose) {
             (Some(p), _, _) => Some(*p),
             (None, Some(s), Some(p)) => Some(s.transform_pose(&p)),
             _ => None,
         };
-        let trust_heading = self.failures_in_a_row < self.config.sweep_after_failures;
+        let every = if self.alignment.is_some() {
+            self.config.sweep_after_failures_aligned
+        } else {
+            self.config.sweep_after_failures
+        };
+        let trust_heading = every != 0
+            && (self.failures_in_a_row == 0 || !self.failures_in_a_row.is_multiple_of(every));
         match predicted {
             Some(p) => Prior {
                 position: Some([p.centre().x, p.centre().y]),
