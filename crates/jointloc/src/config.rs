@@ -27,6 +27,13 @@ pub struct JointLocConfig {
     /// camera (along its optical axis, at the altimeter range) with the map point: it fixes the
     /// roll about a straight track, which positions alone leave free.
     pub nadir_weight: f64,
+    /// Local BA: each fix also pulls its camera onto the point above the fix at the altimeter
+    /// reading (a nadir view), with σ this many times `global_sigma`; 0: off. The camera's true
+    /// tilt makes that point wrong by altitude × tilt (9 cm at 10 m and 0.5°), but the jitter
+    /// is fast and zero-mean, while the SLAM's own tilt drifts slowly (0.5° rms on
+    /// crater-easy-s101): 0.25 measured best of 0 / 0.25 / 0.5 / 1 / 2 (`docs/jointloc.md`
+    /// §"Tilt").
+    pub nadir_sigma_scale: f64,
     /// The alignment is fitted to the most recent this-many fixes (0: all). SLAM drift
     /// (scale, yaw) makes one similarity for the whole flight a compromise that is worst at
     /// the current frame, the one being reported; too few fixes leave the fixes' noise in it.
@@ -65,6 +72,7 @@ impl Default for JointLocConfig {
             inlier_threshold_m: 2.0,
             ransac_iterations: 200,
             nadir_weight: 0.3,
+            nadir_sigma_scale: 0.25,
             alignment_window: 20,
             altitude_window_s: 5.0,
             start_position: None,
@@ -111,6 +119,13 @@ impl JointLocConfig {
             return bad(
                 "nadir_weight",
                 self.nadir_weight.to_string(),
+                "must be finite and >= 0",
+            );
+        }
+        if !(self.nadir_sigma_scale.is_finite() && self.nadir_sigma_scale >= 0.0) {
+            return bad(
+                "nadir_sigma_scale",
+                self.nadir_sigma_scale.to_string(),
                 "must be finite and >= 0",
             );
         }

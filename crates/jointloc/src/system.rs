@@ -19,7 +19,7 @@ use jointloc_slam::map::{GlobalFix, KeyFrameId};
 use jointloc_slam::orb::GrayImageView;
 use jointloc_slam::system::System;
 use jointloc_slam::tracking::TrackingState;
-use nalgebra::{Isometry3, Point3, Vector3};
+use nalgebra::{Isometry3, Point3};
 use serde::Serialize;
 
 use crate::alignment::{self, Correspondence, SlamToWorld};
@@ -498,34 +498,36 @@ impl JointLoc {
             r.inlier = false;
         }
         let s = fitted.sim3;
-        // Global factor per keyframe: the keyframe centre's world position implied by each
-        // inlier fix (fix ground point + the SLAM lever arm from it to the keyframe centre),
-        // averaged with the confidences as weights.
-        let mut per_kf: BTreeMap<KeyFrameId, (Vector3<f64>, f64, f64)> = BTreeMap::new();
+        // Global factors per keyframe, one pair per inlier fix tied to it: the fix's ground
+        // point as the point on the tied frame's optical axis (what a map fix measures), and
+        // the camera above it (a nadir view, `nadir_sigma_scale`). The SLAM's tilt is its
+        // weakest direction (a tilt and a sideways shift look alike over flat ground), so the
+        // lever arm from the ground point to the camera must not be taken from it alone.
+        let mut per_kf: BTreeMap<KeyFrameId, Vec<GlobalFix>> = BTreeMap::new();
         for &i in &fitted.inlier_fixes {
             let t = &self.ties[i];
             self.fixes[t.record].inlier = true;
-            let Some(kf) = self.slam.map().keyframe(t.keyframe) else {
-                continue;
-            };
-            let kf_centre = Point3::from(kf.centre());
-            let implied = t.world_ground.coords
-                + (s.transform_point(&kf_centre) - s.transform_point(&t.slam_ground));
-            let e = per_kf
-                .entry(t.keyframe)
-                .or_insert((Vector3::zeros(), 0.0, 0.0));
-            e.0 += t.weight * implied;
-            e.1 += t.weight;
-            e.2 = e.2.max(t.weight);
+            let fixes = per_kf.entry(t.keyframe).or_default();
+            fixes.push(GlobalFix {
+                point_in_camera: t.ground_in_kf.coords,
+                position: t.world_ground.coords,
+                weight: t.weight,
+                sigma_scale: 1.0,
+            });
+            if self.config.nadir_sigma_scale > 0.0 {
+                fixes.push(GlobalFix {
+                    point_in_camera: t.centre_in_kf.coords,
+                    position: t.world_camera.coords,
+                    weight: t.weight,
+                    sigma_scale: self.config.nadir_sigma_scale,
+                });
+            }
         }
         let map = self.slam.map_mut();
         let ids: Vec<KeyFrameId> = map.keyframes().map(|k| k.id).collect();
         for id in ids {
             if let Some(kf) = map.keyframe_mut(id) {
-                kf.global_fix = per_kf.get(&id).map(|(sum, wsum, wmax)| GlobalFix {
-                    position: sum / *wsum,
-                    weight: *wmax,
-                });
+                kf.global_fixes = per_kf.remove(&id).unwrap_or_default();
             }
         }
         self.slam.set_slam_to_world(Some(s));

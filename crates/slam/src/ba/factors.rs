@@ -74,27 +74,44 @@ pub fn global_position_residual(
     slam_to_world: &Sim3,
     world_position: &Vector3<f64>,
 ) -> (Vector3<f64>, Matrix3x6<f64>) {
+    global_point_residual(pose, slam_to_world, &Vector3::zeros(), world_position)
+}
+
+/// The residual of a fix of the point `o` of the camera frame (the optical axis' ground point,
+/// or the centre for `o = 0`): `r = S · Rᵀ(o − t) − P_G`, `∂r/∂δ = s R_S [−Rᵀ, Rᵀ[o]ₓ]` (3×6).
+pub fn global_point_residual(
+    pose: &WorldToCamera,
+    slam_to_world: &Sim3,
+    point_in_camera: &Vector3<f64>,
+    world_position: &Vector3<f64>,
+) -> (Vector3<f64>, Matrix3x6<f64>) {
     global_position(
         &pose.rotation_matrix(),
         &pose.translation(),
         slam_to_world,
+        point_in_camera,
         world_position,
     )
 }
 
-/// [`global_position_residual`] with the rotation as a matrix.
+/// [`global_point_residual`] with the rotation as a matrix.
 pub(crate) fn global_position(
     rotation: &Matrix3<f64>,
     translation: &Vector3<f64>,
     slam_to_world: &Sim3,
+    point_in_camera: &Vector3<f64>,
     world_position: &Vector3<f64>,
 ) -> (Vector3<f64>, Matrix3x6<f64>) {
     let rt = rotation.transpose();
-    let centre = -(rt * translation);
-    let residual = slam_to_world.transform_point(&Point3::from(centre)).coords - world_position;
+    let point = rt * (point_in_camera - translation);
+    let residual = slam_to_world.transform_point(&Point3::from(point)).coords - world_position;
+    let sr = slam_to_world.scale * slam_to_world.rotation_matrix();
     let mut jac = Matrix3x6::zeros();
-    jac.fixed_view_mut::<3, 3>(0, 0)
-        .copy_from(&(-slam_to_world.scale * (slam_to_world.rotation_matrix() * rt)));
+    jac.fixed_view_mut::<3, 3>(0, 0).copy_from(&(-sr * rt));
+    if *point_in_camera != Vector3::zeros() {
+        jac.fixed_view_mut::<3, 3>(0, 3)
+            .copy_from(&(sr * rt * skew(point_in_camera)));
+    }
     (residual, jac)
 }
 
@@ -220,6 +237,25 @@ mod tests {
                     d[k] = H;
                     let rp = global_position_residual(&perturbed(&pose, &d), &s, &pg).0;
                     let rm = global_position_residual(&perturbed(&pose, &-d), &s, &pg).0;
+                    num.set_column(k, &((rp - rm) / (2.0 * H)));
+                }
+                let ana = DMatrix::from_column_slice(3, 6, j.as_slice());
+                assert!(rel_err(&num, &ana) < 1e-6, "{num} vs {ana}");
+                // A fix of a point of the camera frame (the optical axis' ground point).
+                let o = Vector3::new(
+                    rng.random_range(-1.0..1.0),
+                    rng.random_range(-1.0..1.0),
+                    rng.random_range(5.0..15.0),
+                );
+                let (r, j) = global_point_residual(&pose, &s, &o, &pg);
+                let point = pose.inverse().transform_point(&Point3::from(o));
+                assert!((r - (s.transform_point(&point).coords - pg)).norm() < 1e-9);
+                let mut num = DMatrix::zeros(3, 6);
+                for k in 0..6 {
+                    let mut d = Vector6::zeros();
+                    d[k] = H;
+                    let rp = global_point_residual(&perturbed(&pose, &d), &s, &o, &pg).0;
+                    let rm = global_point_residual(&perturbed(&pose, &-d), &s, &o, &pg).0;
                     num.set_column(k, &((rp - rm) / (2.0 * H)));
                 }
                 let ana = DMatrix::from_column_slice(3, 6, j.as_slice());

@@ -209,7 +209,13 @@ fn camera_terms_cost(problem: &BaProblem, state: &State, rot: &[Matrix3<f64>]) -
             continue;
         }
         let t = state.poses[g.camera].translation();
-        let (r, _) = global_position(&rot[g.camera], &t, &g.slam_to_world, &g.world_position);
+        let (r, _) = global_position(
+            &rot[g.camera],
+            &t,
+            &g.slam_to_world,
+            &g.point_in_camera,
+            &g.world_position,
+        );
         cost += g.weight * g.kernel.rho(r.norm_squared() / (g.sigma * g.sigma));
     }
     for p in &problem.position_priors {
@@ -312,6 +318,7 @@ impl Linearization {
                 &rot[g.camera],
                 &trans[g.camera],
                 &g.slam_to_world,
+                &g.point_in_camera,
                 &g.world_position,
             );
             let inv_var = 1.0 / (g.sigma * g.sigma);

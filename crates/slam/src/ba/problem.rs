@@ -64,7 +64,9 @@ impl Observation {
 /// The paper's global-position factor (§III-C, `e_G = P_G − P_L`): pulls the centre `C_i` of a
 /// keyframe, mapped into the world by the current SLAM→world similarity, onto an absolute fix.
 ///
-/// Residual `r = S · C_i − P_G` with `C_i = −Rᵀt`. Its cost is `½ · w · ρ(‖r‖² / σ²)`: the
+/// Residual `r = S · C_i − P_G` with `C_i = −Rᵀt`; or, with `point_in_camera` = `o`, of that
+/// point of the camera frame, `r = S · Rᵀ(o − t) − P_G` (a map fix locates the ground point on
+/// the optical axis, not the camera). Its cost is `½ · w · ρ(‖r‖² / σ²)`: the
 /// confidence `w` multiplies the robustified term, exactly as in `f(x) = … + Σ w_G ρ(…)`, so
 /// `w = 0` removes the factor. `σ` (metres, world frame) says how far a fix of confidence 1 may
 /// be from the truth; the fusion sets it from the absolute localiser's accuracy. `S` is held
@@ -75,6 +77,8 @@ pub struct GlobalPositionFactor {
     pub camera: usize,
     /// The absolute fix `P_G` in the world frame (x east, y north, z up), metres.
     pub world_position: Vector3<f64>,
+    /// The point of the camera frame (SLAM units) the fix locates; zero: the camera centre.
+    pub point_in_camera: Vector3<f64>,
     /// The SLAM→world similarity `S`, held constant.
     pub slam_to_world: Sim3,
     /// Confidence `w ≥ 0` of the fix.
@@ -96,6 +100,7 @@ impl GlobalPositionFactor {
         Self {
             camera,
             world_position,
+            point_in_camera: Vector3::zeros(),
             slam_to_world,
             weight,
             sigma: 1.0,
@@ -217,6 +222,7 @@ impl BaProblem {
             check_index("global factor camera", i, g.camera, nc)?;
             let s = &g.slam_to_world;
             if !all_finite(&g.world_position)
+                || !all_finite(&g.point_in_camera)
                 || !g.weight.is_finite()
                 || !g.sigma.is_finite()
                 || !s.scale.is_finite()

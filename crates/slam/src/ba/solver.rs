@@ -5,7 +5,7 @@ use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
 
 use super::config::BundleAdjustmentConfig;
-use super::factors::{global_position_residual, reprojection_error};
+use super::factors::{global_point_residual, reprojection_error};
 use super::linear::{Layout, Linearization, State, evaluate_cost};
 use super::problem::BaProblem;
 use crate::Result;
@@ -188,8 +188,12 @@ pub(crate) fn chi2_at(
         .global_factors
         .iter()
         .map(|g| {
-            let (r, _) =
-                global_position_residual(&poses[g.camera], &g.slam_to_world, &g.world_position);
+            let (r, _) = global_point_residual(
+                &poses[g.camera],
+                &g.slam_to_world,
+                &g.point_in_camera,
+                &g.world_position,
+            );
             r.norm_squared() / (g.sigma * g.sigma)
         })
         .collect();

@@ -273,6 +273,59 @@ fn global_factors_pull_a_scale_drifted_map_onto_the_fixes() {
 }
 
 #[test]
+fn ground_point_fixes_pull_the_map_onto_the_points_they_fix() {
+    // A map fix locates the point on the optical axis at the altimeter range, not the camera:
+    // the factor of that camera-frame point must move the pose so that the point lands on the
+    // fix. From the 0.8-scaled map, exact pixels must give back the true poses.
+    for (seed, pixel_noise) in SEEDS.iter().flat_map(|&s| [(s, 0.0), (s, 0.5)]) {
+        let config = SyntheticSceneConfig {
+            pixel_noise_px: pixel_noise,
+            ..clean_config(60 + seed)
+        };
+        let s = scene(config);
+        let shrink = Sim3::new(0.8, UnitQuaternion::identity(), Vector3::zeros());
+        let (mut p, _) = drifted(&s, &shrink);
+        let o = Vector3::new(0.0, 0.0, config.altitude_m);
+        let fixes: Vec<Vector3<f64>> = s
+            .true_cameras
+            .iter()
+            .map(|t| t.inverse().transform_point(&Point3::from(o)).coords)
+            .collect();
+        for (i, fix) in fixes.iter().enumerate() {
+            p.add_global_factor(GlobalPositionFactor {
+                point_in_camera: o,
+                ..GlobalPositionFactor::new(i, *fix, Sim3::identity(), 1.0)
+            });
+        }
+        let ground_error = |cams: &[WorldToCamera]| {
+            cams.iter()
+                .zip(&fixes)
+                .map(|(c, f)| (c.inverse().transform_point(&Point3::from(o)).coords - f).norm())
+                .fold(0.0, f64::max)
+        };
+        let start: Vec<WorldToCamera> = p.cameras.iter().map(|c| c.pose).collect();
+        let before = ground_error(&start);
+        let config = BundleAdjustmentConfig {
+            max_iterations: 50,
+            ..Default::default()
+        };
+        let r = bundle_adjust(&p, &config).unwrap();
+        let after = ground_error(&r.cameras);
+        let e = errors(&p, &r.cameras, &r.points, &s);
+        eprintln!(
+            "seed {seed} ({pixel_noise} px): max ground point to fix {before:.2} m -> {after:.4} m, {e:?}"
+        );
+        assert!(before > 5.0, "seed {seed}: {before}");
+        let tol = if pixel_noise == 0.0 { 1e-3 } else { 0.1 };
+        assert!(after < tol, "seed {seed}: {after} m");
+        if pixel_noise == 0.0 {
+            assert!(e.centre_max_m < 1e-3, "seed {seed}: {e:?}");
+            assert!(e.rotation_max_deg < 1e-2, "seed {seed}: {e:?}");
+        }
+    }
+}
+
+#[test]
 fn global_factors_use_the_slam_to_world_similarity() {
     // SLAM frame = a rotated, shifted, 0.4-scaled copy of the world, plus a 10 % scale drift
     // the similarity does not know about.

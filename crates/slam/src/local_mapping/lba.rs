@@ -63,7 +63,7 @@ pub struct LbaStats {
 
 /// Optimises the local window of `kf` and writes poses and points back; observations flagged
 /// as outliers are erased from the map. `slam_to_world` enables the global-position factors of
-/// the window keyframes that have a `global_fix`.
+/// the window keyframes' `global_fixes`.
 pub fn local_bundle_adjustment(
     map: &mut Map,
     kf: KeyFrameId,
@@ -107,10 +107,16 @@ pub fn local_bundle_adjustment(
             stats.fixed_keyframes += 1;
         } else {
             stats.free_keyframes += 1;
-            if let (Some(fix), Some(s)) = (kfr.global_fix, slam_to_world) {
+            let fixes = if slam_to_world.is_some() {
+                &kfr.global_fixes[..]
+            } else {
+                &[]
+            };
+            for (fix, s) in fixes.iter().zip(slam_to_world.into_iter().cycle()) {
                 problem.add_global_factor(GlobalPositionFactor {
-                    sigma: config.global_sigma,
+                    sigma: config.global_sigma * fix.sigma_scale,
                     kernel: config.global_kernel,
+                    point_in_camera: fix.point_in_camera,
                     ..GlobalPositionFactor::new(ci, fix.position, *s, fix.weight)
                 });
                 stats.global_factors += 1;

@@ -9,14 +9,20 @@ use nalgebra::{Point3, Vector3};
 use super::ids::{KeyFrameId, MapPointId};
 use crate::orb::{FeatureGrid, OrbFeatures};
 
-/// An absolute position fix attached to a keyframe by the fusion (paper §III-C): the keyframe
-/// centre's position in the world frame and the fix's confidence.
+/// An absolute position fix attached to a keyframe by the fusion (paper §III-C): the world
+/// position of a point rigidly attached to the keyframe's camera (its centre, or the ground
+/// point on the optical axis of a frame tied to it) and the fix's confidence.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct GlobalFix {
-    /// World position of the camera centre (x, y from the map, z from the altimeter), metres.
+    /// The point in the keyframe's camera frame, SLAM units; zero: the camera centre.
+    pub point_in_camera: Vector3<f64>,
+    /// Its world position, metres.
     pub position: Vector3<f64>,
     /// Confidence w in [0, 1].
     pub weight: f64,
+    /// Multiplies the local BA's `global_sigma`: how much looser this fix is than a map fix of
+    /// a ground point.
+    pub sigma_scale: f64,
 }
 
 /// What is kept of a keyframe retired by the sliding-window cap: enough for the keyframe and
@@ -47,8 +53,8 @@ pub struct KeyFrame {
     pub points: Vec<Option<MapPointId>>,
     /// Altimeter reading at this frame, metres above ground, if available.
     pub altitude: Option<f64>,
-    /// Absolute fix attached by the fusion, if any.
-    pub global_fix: Option<GlobalFix>,
+    /// Absolute fixes attached by the fusion.
+    pub global_fixes: Vec<GlobalFix>,
     pub(super) covisibility: BTreeMap<KeyFrameId, usize>,
     /// Covisible keyframes by decreasing weight, ties by id.
     pub(super) ordered: Vec<(KeyFrameId, usize)>,
@@ -75,7 +81,7 @@ impl KeyFrame {
             grid,
             points: vec![None; n],
             altitude: None,
-            global_fix: None,
+            global_fixes: Vec::new(),
             covisibility: BTreeMap::new(),
             ordered: Vec::new(),
             parent: None,
