@@ -108,10 +108,8 @@ pub(crate) fn global_position(
     let sr = slam_to_world.scale * slam_to_world.rotation_matrix();
     let mut jac = Matrix3x6::zeros();
     jac.fixed_view_mut::<3, 3>(0, 0).copy_from(&(-sr * rt));
-    if *point_in_camera != Vector3::zeros() {
-        jac.fixed_view_mut::<3, 3>(0, 3)
-            .copy_from(&(sr * rt * skew(point_in_camera)));
-    }
+    jac.fixed_view_mut::<3, 3>(0, 3)
+        .copy_from(&(sr * rt * skew(point_in_camera)));
     (residual, jac)
 }
 

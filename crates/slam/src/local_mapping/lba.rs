@@ -107,19 +107,16 @@ pub fn local_bundle_adjustment(
             stats.fixed_keyframes += 1;
         } else {
             stats.free_keyframes += 1;
-            let fixes = if slam_to_world.is_some() {
-                &kfr.global_fixes[..]
-            } else {
-                &[]
-            };
-            for (fix, s) in fixes.iter().zip(slam_to_world.into_iter().cycle()) {
-                problem.add_global_factor(GlobalPositionFactor {
-                    sigma: config.global_sigma * fix.sigma_scale,
-                    kernel: config.global_kernel,
-                    point_in_camera: fix.point_in_camera,
-                    ..GlobalPositionFactor::new(ci, fix.position, *s, fix.weight)
-                });
-                stats.global_factors += 1;
+            if let Some(s) = slam_to_world {
+                for fix in &kfr.global_fixes {
+                    problem.add_global_factor(GlobalPositionFactor {
+                        sigma: config.global_sigma * fix.sigma_scale,
+                        kernel: config.global_kernel,
+                        point_in_camera: fix.point_in_camera,
+                        ..GlobalPositionFactor::new(ci, fix.position, *s, fix.weight)
+                    });
+                    stats.global_factors += 1;
+                }
             }
         }
     }
