@@ -537,6 +537,27 @@ impl Ground {
     pub fn height_at(&self, x: f64, y: f64) -> f64 {
         self.0.as_ref().map_or(0.0, |e| e.height_at(x, y))
     }
+
+    /// Whether this is an elevation model (not the flat-ground fallback).
+    pub fn has_model(&self) -> bool {
+        self.0.is_some()
+    }
+
+    /// Height and slope `(∂h/∂x, ∂h/∂y)` at world `(x, y)` from the elevation model (slope by
+    /// central differences over one post); `None` without a model or outside its posts.
+    pub fn height_and_slope(&self, x: f64, y: f64) -> Option<(f64, [f64; 2])> {
+        let e = self.0.as_ref()?;
+        let i = &e.info;
+        let (col, row) = ((x - i.origin_x_m) / i.gsd_m, (i.origin_y_m - y) / i.gsd_m);
+        let inside = |v: f64, n: u32| v >= 1.0 && v <= n as f64 - 2.0;
+        if !(inside(col, i.width_px) && inside(row, i.height_px)) {
+            return None;
+        }
+        let d = i.gsd_m;
+        let gx = (e.height_at(x + d, y) - e.height_at(x - d, y)) / (2.0 * d);
+        let gy = (e.height_at(x, y + d) - e.height_at(x, y - d)) / (2.0 * d);
+        Some((e.height_at(x, y), [gx, gy]))
+    }
 }
 
 #[cfg(test)]

@@ -136,11 +136,53 @@ impl JointLocConfig {
                 "must be finite and >= 0",
             );
         }
+        let ba = &self.slam.local_mapping.ba;
+        if !(ba.global_sigma.is_finite() && ba.global_sigma > 0.0) {
+            return bad(
+                "slam.local_mapping.ba.global_sigma",
+                ba.global_sigma.to_string(),
+                "must be finite and > 0",
+            );
+        }
+        if !(ba.ground_sigma.is_finite() && ba.ground_sigma >= 0.0) {
+            return bad(
+                "slam.local_mapping.ba.ground_sigma",
+                ba.ground_sigma.to_string(),
+                "must be finite and >= 0 (0: no ground factors)",
+            );
+        }
         if let Some(p) = self.start_position
             && !p.iter().all(|v| v.is_finite())
         {
             return bad("start_position", format!("{p:?}"), "must be finite");
         }
         self.faults.validate()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn invalid_sigmas_are_rejected_with_their_field() {
+        assert!(JointLocConfig::default().validate().is_ok());
+        for (ground, global, field) in [
+            (f64::NAN, 0.15, "slam.local_mapping.ba.ground_sigma"),
+            (-0.1, 0.15, "slam.local_mapping.ba.ground_sigma"),
+            (0.1, 0.0, "slam.local_mapping.ba.global_sigma"),
+            (0.1, f64::INFINITY, "slam.local_mapping.ba.global_sigma"),
+        ] {
+            let mut c = JointLocConfig::default();
+            c.slam.local_mapping.ba.ground_sigma = ground;
+            c.slam.local_mapping.ba.global_sigma = global;
+            match c.validate() {
+                Err(JointLocError::InvalidConfig { field: f, .. }) => assert_eq!(f, field),
+                other => panic!("{ground} {global}: {other:?}"),
+            }
+        }
+        let mut off = JointLocConfig::default();
+        off.slam.local_mapping.ba.ground_sigma = 0.0;
+        assert!(off.validate().is_ok());
     }
 }

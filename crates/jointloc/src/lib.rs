@@ -13,6 +13,7 @@ pub mod altitude;
 pub mod config;
 pub mod error;
 pub mod faults;
+pub mod ground;
 pub mod system;
 mod worker;
 

@@ -26,6 +26,7 @@ use crate::alignment::{self, Correspondence, SlamToWorld};
 use crate::altitude::AltitudeFilter;
 use crate::config::JointLocConfig;
 use crate::error::Result;
+use crate::ground::ElevationGround;
 use crate::worker::AbsoluteWorker;
 
 /// An absolute fix as the fusion saw it.
@@ -197,7 +198,10 @@ impl JointLoc {
         config: JointLocConfig,
     ) -> Result<Self> {
         config.validate()?;
-        let slam = System::new(camera, config.slam.clone())?;
+        let mut slam = System::new(camera, config.slam.clone())?;
+        if ground.has_model() {
+            slam.set_ground(Some(std::sync::Arc::new(ElevationGround(ground.clone()))));
+        }
         let altitude = AltitudeFilter::new(config.altitude_window_s, ground);
         Ok(Self {
             config,

@@ -4,6 +4,7 @@
 //! recorded for the timing summary.
 
 use std::collections::BTreeMap;
+use std::sync::Arc;
 use std::time::Instant;
 
 use jointloc_geometry::trajectory::Trajectory;
@@ -14,7 +15,7 @@ use serde::{Deserialize, Serialize};
 use crate::cpu_time::{cpu_ms, thread_cpu_ns};
 use crate::error::{Result, SlamError};
 use crate::frame::{Frame, image_entropy};
-use crate::local_mapping::{LocalMapper, LocalMappingConfig};
+use crate::local_mapping::{GroundModel, LocalMapper, LocalMappingConfig};
 use crate::map::{KeyFrameId, Map, RetiredKeyFrame};
 use crate::orb::{GrayImageView, OrbConfig, OrbExtractor};
 use crate::tracking::{Tracker, TrackingConfig, TrackingState};
@@ -128,6 +129,7 @@ pub struct System {
     tracker: Tracker,
     mapper: LocalMapper,
     slam_to_world: Option<Sim3>,
+    ground: Option<Arc<dyn GroundModel>>,
     records: Vec<FrameRecord>,
     culled: BTreeMap<KeyFrameId, (KeyFrameId, Isometry3<f64>)>,
     /// Keyframes retired by the cap, by id.
@@ -157,6 +159,7 @@ impl System {
             tracker: Tracker::new(config.tracking),
             mapper: LocalMapper::new(config.local_mapping),
             slam_to_world: None,
+            ground: None,
             records: Vec::new(),
             culled: BTreeMap::new(),
             retired: BTreeMap::new(),
@@ -188,6 +191,12 @@ impl System {
     /// global factors).
     pub fn set_slam_to_world(&mut self, s: Option<Sim3>) {
         self.slam_to_world = s;
+    }
+
+    /// The terrain the local BA puts map points on once geo-referenced
+    /// ([`LocalBaConfig::ground_sigma`](crate::local_mapping::LocalBaConfig::ground_sigma)).
+    pub fn set_ground(&mut self, ground: Option<Arc<dyn GroundModel>>) {
+        self.ground = ground;
     }
 
     /// Declares tracking lost, forgetting the motion model (see [`Tracker::force_lost`]).
@@ -247,9 +256,13 @@ impl System {
         {
             self.tracker.keyframe_inserted(&frame, kf);
             frame.reference = Some(kf);
-            let report =
-                self.mapper
-                    .process(&mut self.map, kf, &self.ideal, self.slam_to_world.as_ref())?;
+            let report = self.mapper.process(
+                &mut self.map,
+                kf,
+                &self.ideal,
+                self.slam_to_world.as_ref(),
+                self.ground.as_deref(),
+            )?;
             for c in &report.culled_keyframes {
                 self.culled.insert(c.id, (c.parent, c.relative));
             }

@@ -7,6 +7,8 @@
 //! camera's own centre leaves the centre in place).
 
 use jointloc_geometry::{PinholeCamera, Sim3, WorldToCamera, pose::skew};
+
+use super::problem::GroundPlane;
 use nalgebra::{Matrix2x3, Matrix3, Matrix3x6, Point2, Point3, SMatrix, Vector2, Vector3};
 
 /// 2×6 Jacobian of a pixel residual with respect to a pose update `δ = [ρ; φ]`.
@@ -111,6 +113,21 @@ pub(crate) fn global_position(
     jac.fixed_view_mut::<3, 3>(0, 3)
         .copy_from(&(sr * rt * skew(point_in_camera)));
     (residual, jac)
+}
+
+/// Residual of a map point against the terrain, linearised at `anchor` (world x, y): `r =
+/// z − (h + ∇h · (x − anchor))` of `(x, y, z) = S · X`, with `∂r/∂X = (e_z − [∇h, 0])ᵀ s R_S`.
+pub fn ground_height_residual(
+    point: &Vector3<f64>,
+    slam_to_world: &Sim3,
+    ground: &GroundPlane,
+) -> (f64, nalgebra::RowVector3<f64>) {
+    let w = slam_to_world.transform_point(&Point3::from(*point));
+    let [gx, gy] = ground.slope;
+    let expected = ground.height + gx * (w.x - ground.anchor[0]) + gy * (w.y - ground.anchor[1]);
+    let sr = slam_to_world.scale * slam_to_world.rotation_matrix();
+    let normal = nalgebra::RowVector3::new(-gx, -gy, 1.0);
+    (w.z - expected, normal * sr)
 }
 
 /// Camera-centre prior residual `r = C − C_prior` with `∂r/∂δ = [−Rᵀ, 0]`.
@@ -262,6 +279,50 @@ mod tests {
                 let (rp, jp) = position_prior(&pose.rotation_matrix(), &pose.translation(), &pg);
                 let (rg, jg) = global_position_residual(&pose, &Sim3::identity(), &pg);
                 assert!((rp - rg).norm() < 1e-9 && (jp - jg).norm() < 1e-12);
+            }
+        }
+    }
+
+    #[test]
+    fn ground_height_jacobian_matches_central_differences() {
+        for seed in 0..5 {
+            let mut rng = ChaCha8Rng::seed_from_u64(200 + seed);
+            for _ in 0..20 {
+                let s = Sim3::new(
+                    rng.random_range(0.3..3.0),
+                    UnitQuaternion::from_euler_angles(
+                        rng.random_range(-1.0..1.0),
+                        rng.random_range(-1.0..1.0),
+                        rng.random_range(-3.0..3.0),
+                    ),
+                    Vector3::new(rng.random_range(-100.0..100.0), 4.0, -2.0),
+                );
+                let x = Vector3::new(
+                    rng.random_range(-20.0..20.0),
+                    rng.random_range(-20.0..20.0),
+                    rng.random_range(-5.0..5.0),
+                );
+                let ground = GroundPlane {
+                    anchor: [rng.random_range(-50.0..50.0), rng.random_range(-50.0..50.0)],
+                    height: rng.random_range(-3.0..3.0),
+                    slope: [rng.random_range(-0.5..0.5), rng.random_range(-0.5..0.5)],
+                };
+                let (r, j) = ground_height_residual(&x, &s, &ground);
+                let w = s.transform_point(&Point3::from(x));
+                let plane = ground.height
+                    + ground.slope[0] * (w.x - ground.anchor[0])
+                    + ground.slope[1] * (w.y - ground.anchor[1]);
+                assert!((r - (w.z - plane)).abs() < 1e-9);
+                let mut num = DMatrix::zeros(1, 3);
+                for k in 0..3 {
+                    let mut d = Vector3::zeros();
+                    d[k] = H;
+                    let rp = ground_height_residual(&(x + d), &s, &ground).0;
+                    let rm = ground_height_residual(&(x - d), &s, &ground).0;
+                    num[(0, k)] = (rp - rm) / (2.0 * H);
+                }
+                let ana = DMatrix::from_column_slice(1, 3, j.as_slice());
+                assert!(rel_err(&num, &ana) < 1e-6, "{num} vs {ana}");
             }
         }
     }

@@ -14,7 +14,9 @@
 use jointloc_geometry::{RobustKernel, WorldToCamera};
 use nalgebra::{DMatrix, DVector, Matrix3, Matrix6, Matrix6x3, Vector3, Vector6};
 
-use super::factors::{global_position, position_prior, reprojection, reprojection_error};
+use super::factors::{
+    global_position, ground_height_residual, position_prior, reprojection, reprojection_error,
+};
 use super::problem::BaProblem;
 
 /// Marquardt scaling: the damping adds `μ · clamp(H_kk)` to each diagonal entry (as Ceres does),
@@ -198,7 +200,20 @@ pub(crate) fn evaluate_cost(
         )?;
         cost += kernel.rho(o.information * e.norm_squared());
     }
-    Some(0.5 * (cost + camera_terms_cost(problem, state, &rot)))
+    Some(0.5 * (cost + camera_terms_cost(problem, state, &rot) + ground_cost(problem, state)))
+}
+
+/// `Σ ρ(r²/σ²)` of the ground-height factors (without the ½).
+fn ground_cost(problem: &BaProblem, state: &State) -> f64 {
+    problem
+        .ground_factors
+        .iter()
+        .map(|g| {
+            let (r, _) =
+                ground_height_residual(&state.points[g.point], &g.slam_to_world, &g.ground);
+            g.kernel.rho(r * r / (g.sigma * g.sigma))
+        })
+        .sum()
 }
 
 /// `Σ w ρ(‖r‖²/σ²) + Σ ‖C − C_prior‖²/σ²` (without the ½).
@@ -336,7 +351,20 @@ impl Linearization {
             self.u[c] += jt * j;
             self.gc[c] += jt * r;
         }
-        self.cost = 0.5 * (cost + camera_terms_cost(problem, state, &rot));
+        for g in &problem.ground_factors {
+            let Some(p) = layout.point_block[g.point] else {
+                continue;
+            };
+            let (r, j) =
+                ground_height_residual(&state.points[g.point], &g.slam_to_world, &g.ground);
+            let inv_var = 1.0 / (g.sigma * g.sigma);
+            let omega = g.kernel.weight(r * r * inv_var) * inv_var;
+            let jt = j.transpose() * omega;
+            self.v[p] += jt * j;
+            self.gp[p] += jt * r;
+        }
+        self.cost =
+            0.5 * (cost + camera_terms_cost(problem, state, &rot) + ground_cost(problem, state));
     }
 
     /// `‖g‖∞`, for the first-order optimality test.

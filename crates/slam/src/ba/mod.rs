@@ -28,7 +28,8 @@ mod two_stage;
 
 pub use config::{BundleAdjustmentConfig, CHI2_2DOF_95, TwoStageConfig};
 pub use problem::{
-    BaCamera, BaPoint, BaProblem, CHI2_3DOF_95, GlobalPositionFactor, Observation, PositionPrior,
+    BaCamera, BaPoint, BaProblem, CHI2_3DOF_95, GlobalPositionFactor, GroundHeightFactor,
+    GroundPlane, Observation, PositionPrior,
 };
 pub use solver::{BundleAdjustmentResult, Termination, bundle_adjust};
 pub use two_stage::bundle_adjust_two_stage;

@@ -123,6 +123,34 @@ pub struct PositionPrior {
     pub sigma: f64,
 }
 
+/// The terrain near a point, as a plane: height `height` (world z, metres) at world
+/// `anchor` (x, y), slope `(∂h/∂x, ∂h/∂y)`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct GroundPlane {
+    pub anchor: [f64; 2],
+    pub height: f64,
+    pub slope: [f64; 2],
+}
+
+/// A map point lies on the terrain of an elevation model: cost `½ ρ(r² / σ²)` with `r` the
+/// world height of `S · X` above the model's plane there. Many points over a keyframe window
+/// fix the tilt of the local map, which the position fixes (a few per window, their heights
+/// from a 0.1 m altimeter) leave loose: over near-flat ground a monocular SLAM confuses tilt
+/// with a sideways shift.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct GroundHeightFactor {
+    /// Index into [`BaProblem::points`].
+    pub point: usize,
+    /// The SLAM→world similarity `S`, held constant.
+    pub slam_to_world: Sim3,
+    /// The terrain at the point's world x, y when the problem was built.
+    pub ground: GroundPlane,
+    /// σ of the model's height at a map point, metres (model error + the point's own relief).
+    pub sigma: f64,
+    /// Kernel on `r² / σ²`.
+    pub kernel: RobustKernel,
+}
+
 /// Everything a (local) bundle adjustment needs.
 #[derive(Debug, Clone, PartialEq)]
 pub struct BaProblem {
@@ -138,6 +166,8 @@ pub struct BaProblem {
     pub global_factors: Vec<GlobalPositionFactor>,
     /// Priors on camera centres in the SLAM frame.
     pub position_priors: Vec<PositionPrior>,
+    /// Map points on the terrain of an elevation model.
+    pub ground_factors: Vec<GroundHeightFactor>,
 }
 
 impl BaProblem {
@@ -150,6 +180,7 @@ impl BaProblem {
             observations: Vec::new(),
             global_factors: Vec::new(),
             position_priors: Vec::new(),
+            ground_factors: Vec::new(),
         }
     }
 
@@ -184,6 +215,11 @@ impl BaProblem {
     /// Adds a global-position factor.
     pub fn add_global_factor(&mut self, factor: GlobalPositionFactor) {
         self.global_factors.push(factor);
+    }
+
+    /// Adds a ground-height factor.
+    pub fn add_ground_factor(&mut self, factor: GroundHeightFactor) {
+        self.ground_factors.push(factor);
     }
 
     /// Adds a camera-centre prior.
@@ -250,6 +286,34 @@ impl BaProblem {
                     p.sigma
                 )));
             }
+        }
+        for (i, g) in self.ground_factors.iter().enumerate() {
+            check_index("ground factor point", i, g.point, np)?;
+            let s = &g.slam_to_world;
+            let plane = &g.ground;
+            if ![
+                plane.height,
+                plane.anchor[0],
+                plane.anchor[1],
+                plane.slope[0],
+                plane.slope[1],
+            ]
+            .iter()
+            .all(|v| v.is_finite())
+                || !g.sigma.is_finite()
+                || !s.scale.is_finite()
+                || !all_finite(&s.translation)
+                || !s.rotation.coords.iter().all(|v| v.is_finite())
+            {
+                return Err(SlamError::NonFinite("ground-height factor"));
+            }
+            if g.sigma <= 0.0 || s.scale <= 0.0 {
+                return Err(SlamError::InvalidProblem(format!(
+                    "ground factor {i}: sigma {} and scale {} must be > 0",
+                    g.sigma, s.scale
+                )));
+            }
+            check_kernel(&g.kernel)?;
         }
         Ok(())
     }

@@ -592,3 +592,55 @@ fn gauge_free_problem_is_damped_not_singular() {
         assert_eq!(r.outlier_count(), 0, "seed {seed}");
     }
 }
+
+#[test]
+fn ground_factors_take_the_tilt_out_of_the_map() {
+    // The map is tilted by 1° about the line through the first two cameras, whose fixes then
+    // still hold: positions alone leave that tilt free. The points' heights on the terrain
+    // must take it out.
+    for seed in SEEDS {
+        let s = scene(SyntheticSceneConfig {
+            pixel_noise_px: 0.0,
+            ..clean_config(80 + seed)
+        });
+        let c0 = camera_centre(&s.true_cameras[0]);
+        let c1 = camera_centre(&s.true_cameras[1]);
+        let r = UnitQuaternion::from_axis_angle(
+            &nalgebra::Unit::new_normalize(c1 - c0),
+            1f64.to_radians(),
+        );
+        let tilt = Sim3::new(1.0, r, c0 - r * c0);
+        let (mut p, fixes) = drifted(&s, &tilt);
+        for (i, fix) in fixes.iter().enumerate().take(2) {
+            p.add_global_factor(GlobalPositionFactor::new(i, *fix, Sim3::identity(), 1.0));
+        }
+        let config = BundleAdjustmentConfig {
+            max_iterations: 50,
+            ..Default::default()
+        };
+        let solve = |p: &BaProblem| {
+            let r = bundle_adjust(p, &config).unwrap();
+            errors(p, &r.cameras, &r.points, &s)
+        };
+        let without = solve(&p);
+        for (j, x) in s.true_points.iter().enumerate() {
+            p.add_ground_factor(GroundHeightFactor {
+                point: j,
+                slam_to_world: Sim3::identity(),
+                ground: GroundPlane {
+                    anchor: [x.x, x.y],
+                    height: x.z,
+                    slope: [0.0, 0.0],
+                },
+                sigma: 0.1,
+                kernel: jointloc_geometry::RobustKernel::Huber { delta: 1.0 },
+            });
+        }
+        let with = solve(&p);
+        eprintln!("seed {seed}: without {without:?}, with {with:?}");
+        assert!(without.rotation_max_deg > 0.9, "seed {seed}: {without:?}");
+        assert!(with.rotation_max_deg < 0.01, "seed {seed}: {with:?}");
+        assert!(with.centre_max_m < 1e-3, "seed {seed}: {with:?}");
+        assert!(with.point_median_m < 1e-3, "seed {seed}: {with:?}");
+    }
+}

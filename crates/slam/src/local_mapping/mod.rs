@@ -19,7 +19,7 @@ use crate::frame::Frame;
 use crate::map::{KeyFrame, KeyFrameId, Map};
 
 pub use culling::CulledKeyFrame;
-pub use lba::{LbaStats, LocalBaConfig, local_bundle_adjustment};
+pub use lba::{GroundModel, LbaStats, LocalBaConfig, local_bundle_adjustment};
 pub use triangulation::TriangulationConfig;
 
 /// Settings of the local mapper.
@@ -113,6 +113,7 @@ impl LocalMapper {
         kf: KeyFrameId,
         camera: &PinholeCamera,
         slam_to_world: Option<&Sim3>,
+        ground: Option<&dyn GroundModel>,
     ) -> Result<LocalMappingReport> {
         let start = Instant::now();
         let start_cpu = thread_cpu_ns();
@@ -130,7 +131,7 @@ impl LocalMapper {
         report.fused = fusion::fuse_with_neighbours(map, kf, camera, cfg.fusion_neighbours);
         let t = Instant::now();
         let t_cpu = thread_cpu_ns();
-        report.lba = local_bundle_adjustment(map, kf, camera, &cfg.ba, slam_to_world)?;
+        report.lba = local_bundle_adjustment(map, kf, camera, &cfg.ba, slam_to_world, ground)?;
         report.lba_ms = t.elapsed().as_secs_f64() * 1e3;
         report.lba_cpu_ms = cpu_ms(t_cpu, thread_cpu_ns());
         report.culled_keyframes = culling::cull_keyframes(map, kf, cfg.keyframe_redundancy);
