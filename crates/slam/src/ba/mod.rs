@@ -2,8 +2,10 @@
 //!
 //! The cost over free keyframe poses `T_i` and map points `X_j` is
 //! ```text
-//! f(x) = ½ Σ_ij ρ(e_ijᵀ Ω_ij e_ij) + ½ Σ_i w_G,i ρ_G(‖S · C_i − P_G,i‖² / σ_G²) [+ ½ Σ priors]
+//! f(x) = ½ Σ_ij ρ(e_ijᵀ Ω_ij e_ij) + ½ Σ_i w_G,i ρ_G(‖S · C_i − P_G,i‖² / σ_G²)
+//!        [+ ½ Σ_j ρ_h(h_j² / σ_h²)] [+ ½ Σ priors]
 //! ```
+//! with `h_j` the height of `S · X_j` above the elevation model (the ground-height factors).
 //! with `e_ij = π(T_i X_j) − z_ij`, `Ω_ij = 1/σ²` of the keypoint's pyramid level, `C_i` the
 //! keyframe centre in the SLAM frame and `S` the SLAM→world similarity, held fixed. It is
 //! minimised by Levenberg–Marquardt (Nielsen's damping update, Marquardt diagonal scaling) with
