@@ -27,11 +27,16 @@ mod tests {
         let Some(a) = thread_cpu_ns() else {
             return; // Not Linux: nothing to check.
         };
-        let mut x = 0u64;
-        for i in 0..20_000_000u64 {
-            x = x.wrapping_mul(6364136223846793005).wrapping_add(i);
+        // 30 ms of spinning, whatever the optimiser makes of the loop body.
+        let start = std::time::Instant::now();
+        let (mut x, mut i) = (0u64, 0u64);
+        while start.elapsed() < std::time::Duration::from_millis(30) {
+            x = std::hint::black_box(x.wrapping_mul(6364136223846793005).wrapping_add(i));
+            i += 1;
         }
-        std::hint::black_box(x);
+        // A running thread's schedstat is brought up to date at scheduling events; a tickless
+        // core may not have had one during the loop.
+        std::thread::yield_now();
         let b = thread_cpu_ns();
         std::thread::sleep(std::time::Duration::from_millis(50));
         let c = thread_cpu_ns();
