@@ -220,25 +220,30 @@ mod tests {
         }
     }
 
+    /// A SLAM→world similarity of any scale, attitude and offset.
+    fn random_sim3(rng: &mut ChaCha8Rng) -> Sim3 {
+        Sim3::new(
+            rng.random_range(0.3..3.0),
+            UnitQuaternion::from_euler_angles(
+                rng.random_range(-1.0..1.0),
+                rng.random_range(-1.0..1.0),
+                rng.random_range(-3.0..3.0),
+            ),
+            Vector3::new(
+                rng.random_range(-100.0..100.0),
+                rng.random_range(-100.0..100.0),
+                rng.random_range(-10.0..10.0),
+            ),
+        )
+    }
+
     #[test]
     fn global_position_jacobian_matches_central_differences() {
         for seed in 0..5 {
             let mut rng = ChaCha8Rng::seed_from_u64(100 + seed);
             for _ in 0..20 {
                 let pose = random_pose(&mut rng);
-                let s = Sim3::new(
-                    rng.random_range(0.3..3.0),
-                    UnitQuaternion::from_euler_angles(
-                        rng.random_range(-1.0..1.0),
-                        rng.random_range(-1.0..1.0),
-                        rng.random_range(-3.0..3.0),
-                    ),
-                    Vector3::new(
-                        rng.random_range(-100.0..100.0),
-                        rng.random_range(-100.0..100.0),
-                        rng.random_range(-10.0..10.0),
-                    ),
-                );
+                let s = random_sim3(&mut rng);
                 let pg = Vector3::new(rng.random_range(-50.0..50.0), 3.0, 60.0);
                 let (r, j) = global_position_residual(&pose, &s, &pg);
                 let expected = s
@@ -288,15 +293,7 @@ mod tests {
         for seed in 0..5 {
             let mut rng = ChaCha8Rng::seed_from_u64(200 + seed);
             for _ in 0..20 {
-                let s = Sim3::new(
-                    rng.random_range(0.3..3.0),
-                    UnitQuaternion::from_euler_angles(
-                        rng.random_range(-1.0..1.0),
-                        rng.random_range(-1.0..1.0),
-                        rng.random_range(-3.0..3.0),
-                    ),
-                    Vector3::new(rng.random_range(-100.0..100.0), 4.0, -2.0),
-                );
+                let s = random_sim3(&mut rng);
                 let x = Vector3::new(
                     rng.random_range(-20.0..20.0),
                     rng.random_range(-20.0..20.0),

@@ -261,9 +261,7 @@ impl BaProblem {
                 || !all_finite(&g.point_in_camera)
                 || !g.weight.is_finite()
                 || !g.sigma.is_finite()
-                || !s.scale.is_finite()
-                || !all_finite(&s.translation)
-                || !s.rotation.coords.iter().all(|v| v.is_finite())
+                || !sim3_finite(s)
             {
                 return Err(SlamError::NonFinite("global-position factor"));
             }
@@ -301,9 +299,7 @@ impl BaProblem {
             .iter()
             .all(|v| v.is_finite())
                 || !g.sigma.is_finite()
-                || !s.scale.is_finite()
-                || !all_finite(&s.translation)
-                || !s.rotation.coords.iter().all(|v| v.is_finite())
+                || !sim3_finite(s)
             {
                 return Err(SlamError::NonFinite("ground-height factor"));
             }
@@ -321,6 +317,12 @@ impl BaProblem {
 
 fn all_finite(v: &Vector3<f64>) -> bool {
     v.iter().all(|x| x.is_finite())
+}
+
+fn sim3_finite(s: &Sim3) -> bool {
+    s.scale.is_finite()
+        && all_finite(&s.translation)
+        && s.rotation.coords.iter().all(|v| v.is_finite())
 }
 
 fn check_index(what: &str, item: usize, index: usize, len: usize) -> Result<()> {
