@@ -187,6 +187,28 @@ pub struct MatchContext<'a> {
     pub expected_scale: Option<f64>,
 }
 
+/// The pixels of `matches`: query keypoints (in the normalised view) and tile keypoints moved
+/// into map pixels by the tile's offset.
+pub fn matched_points(
+    query: &Features,
+    tile_features: &Features,
+    matches: &Matches,
+    tile: &MapTile,
+) -> (Vec<Point2<f64>>, Vec<Point2<f64>>) {
+    let (ox, oy) = (tile.x as f64, tile.y as f64);
+    matches
+        .pairs
+        .iter()
+        .map(|&(i, j)| {
+            let (a, b) = (query.keypoints[i], tile_features.keypoints[j]);
+            (
+                Point2::new(a[0] as f64, a[1] as f64),
+                Point2::new(b[0] as f64 + ox, b[1] as f64 + oy),
+            )
+        })
+        .unzip()
+}
+
 /// Matches `view` against tile `tile` (features in tile pixels) and checks the homography.
 pub fn evaluate(
     ctx: &MatchContext<'_>,
@@ -206,20 +228,7 @@ pub fn evaluate(
             matches: matches.pairs.len(),
         }));
     }
-    let (ox, oy) = (tile.x as f64, tile.y as f64);
-    let src: Vec<Point2<f64>> = matches
-        .pairs
-        .iter()
-        .map(|&(i, _)| Point2::new(q.keypoints[i][0] as f64, q.keypoints[i][1] as f64))
-        .collect();
-    let dst: Vec<Point2<f64>> = matches
-        .pairs
-        .iter()
-        .map(|&(_, j)| {
-            let k = tile_features.keypoints[j];
-            Point2::new(k[0] as f64 + ox, k[1] as f64 + oy)
-        })
-        .collect();
+    let (src, dst) = matched_points(q, tile_features, &matches, tile);
     let mut cfg = *ctx.homography;
     cfg.ransac.min_inliers = cfg.ransac.min_inliers.max(ctx.accept.min_inliers);
     let est = match estimate_homography(&src, &dst, &cfg) {

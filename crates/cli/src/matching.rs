@@ -6,8 +6,8 @@ use std::path::PathBuf;
 use anyhow::{Context, bail};
 use jointloc_absloc::ground_truth::{GroundTruthSource, TerrainHeights};
 use jointloc_absloc::match_bench::{
-    BenchConfig, MatchReport, THRESHOLDS_PX, pairs_from_dataset, read_pairs_file, run_bench,
-    threshold_key,
+    BenchConfig, HomographyFit, MatchReport, THRESHOLDS_PX, pairs_from_dataset, read_pairs_file,
+    run_bench, threshold_key,
 };
 use jointloc_absloc::registry::{MATCHERS, RegistryOptions, resolve};
 
@@ -42,6 +42,11 @@ pub struct Args {
     /// terrain heightfield.
     #[arg(long)]
     flat_ground: bool,
+    /// Homography scored: `tight` (RANSAC at 3 px, refined on its inliers: the localiser's and
+    /// the paper's) or `footprint` (then refitted over every match within 20 px, the whole
+    /// footprint over relief, as the terrain ground truth is defined).
+    #[arg(long, value_name = "FIT", default_value = "tight")]
+    fit: HomographyFit,
     /// Keypoints per image (default: each detector's own).
     #[arg(long, value_name = "N")]
     max_keypoints: Option<usize>,
@@ -111,12 +116,25 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         )?;
         (pairs, Some(source))
     };
-    let cfg = BenchConfig::default();
+    let cfg = BenchConfig {
+        fit: args.fit,
+        ..BenchConfig::default()
+    };
     let mut reports: Vec<MatchReport> = Vec::new();
     for p in &pipelines {
         reports.push(run_bench(p, &pairs, &cfg)?);
     }
     print_table(&reports, source);
+    println!(
+        "homography scored: {}",
+        match args.fit {
+            HomographyFit::Tight => "tight (RANSAC 3 px, refined on its inliers)".to_string(),
+            HomographyFit::Footprint => format!(
+                "footprint (the tight fit refitted over every match within {} px)",
+                cfg.footprint_threshold_px
+            ),
+        }
+    );
     if let Some(path) = &args.json {
         let json = serde_json::json!({
             "pairs": pairs.len(),
@@ -125,6 +143,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             "pairs_file": args.pairs_file,
             "normalised": args.pairs_file.is_none() && !args.native_scale,
             "ground_truth": source.map(|s| format!("{s:?}")),
+            "fit": args.fit.name(),
+            "footprint_threshold_px": (args.fit == HomographyFit::Footprint)
+                .then_some(cfg.footprint_threshold_px),
             "matchers": reports,
         });
         std::fs::write(path, serde_json::to_string_pretty(&json)? + "\n")

@@ -92,7 +92,9 @@ fn simulated_pairs_give_the_table_and_json() {
     assert_eq!(m["accuracy"]["@10px"], 1.0, "{m}");
     assert!(m["accuracy"]["@1px"].as_f64().unwrap() <= m["accuracy"]["@5px"].as_f64().unwrap());
     assert_eq!(m["results"].as_array().unwrap().len(), 5);
-    // The same seed draws the same pairs.
+    assert_eq!(v["fit"], "tight");
+    // The same seed draws the same pairs; the footprint fit scores the same pairs with the
+    // refit over every match within its threshold.
     let again = jointloc(&[
         "match",
         "--dataset",
@@ -106,10 +108,39 @@ fn simulated_pairs_give_the_table_and_json() {
         "--json",
         s(&json),
         "--force",
+        "--fit",
+        "footprint",
     ]);
     assert!(again.status.success());
+    assert!(String::from_utf8_lossy(&again.stdout).contains("homography scored: footprint"));
     let w: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    assert_eq!(w["fit"], "footprint");
+    assert_eq!(w["footprint_threshold_px"], 20.0);
+    let inliers = |v: &serde_json::Value| -> Vec<u64> {
+        v["matchers"][0]["results"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|r| r["inliers"].as_u64().unwrap())
+            .collect()
+    };
+    for (tight, wide) in inliers(&v).iter().zip(inliers(&w)) {
+        assert!(wide >= *tight, "footprint {wide} < tight {tight} inliers");
+    }
+    assert_eq!(w["matchers"][0]["accuracy"]["@10px"], 1.0, "{w}");
+    assert!(
+        failure(&jointloc(&[
+            "match",
+            "--dataset",
+            s(dataset()),
+            "--matcher",
+            "orb",
+            "--fit",
+            "wide"
+        ]))
+        .contains("tight or footprint")
+    );
     let labels = |v: &serde_json::Value| -> Vec<String> {
         v["matchers"][0]["results"]
             .as_array()

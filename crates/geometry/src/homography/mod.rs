@@ -13,6 +13,7 @@
 mod decompose;
 mod dlt;
 mod estimator;
+mod footprint;
 mod refine;
 
 use nalgebra::{Matrix3, Point2};
@@ -21,6 +22,7 @@ use serde::{Deserialize, Serialize};
 pub use decompose::{HomographyMotion, decompose_homography};
 pub use dlt::{dlt, minimal_homography};
 pub use estimator::{HomographyEstimator, HomographyModel};
+pub use footprint::{FootprintFit, refit_over_footprint};
 pub use refine::{Matrix4x8, Refinement, refine_homography, symmetric_transfer_jacobian};
 
 use crate::error::{GeometryError, Result};
