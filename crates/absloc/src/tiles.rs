@@ -543,6 +543,12 @@ impl Ground {
         self.0.is_some()
     }
 
+    /// The elevation model's stated vertical precision (`[elevation] sigma_m`), metres; `None`
+    /// without a model.
+    pub fn stated_sigma_m(&self) -> Option<f64> {
+        self.0.as_ref().map(|e| e.info.sigma_m)
+    }
+
     /// Height and slope `(∂h/∂x, ∂h/∂y)` at world `(x, y)` from the elevation model (slope by
     /// central differences over one post); `None` without a model or outside its posts.
     pub fn height_and_slope(&self, x: f64, y: f64) -> Option<(f64, [f64; 2])> {

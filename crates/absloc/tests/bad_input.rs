@@ -102,6 +102,8 @@ fn a_broken_elevation_model_is_an_error_naming_it() {
         .unwrap();
     let tiles = MapTiles::open(d).unwrap();
     assert!((tiles.ground_height(20.0, -20.0) - 2.0).abs() < 1e-4);
+    // Its stated precision reaches the ground factors (never held tighter than it).
+    assert_eq!(tiles.ground().stated_sigma_m(), Some(0.05));
     // A wrong size.
     image::ImageBuffer::<image::Luma<u16>, _>::from_pixel(25, 250, image::Luma([7000u16]))
         .save(d.join("elevation.png"))

@@ -20,4 +20,8 @@ impl GroundModel for ElevationGround {
             slope,
         })
     }
+
+    fn sigma_m(&self) -> f64 {
+        self.0.stated_sigma_m().unwrap_or(0.0)
+    }
 }

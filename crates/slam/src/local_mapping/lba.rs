@@ -38,7 +38,9 @@ pub struct LocalBaConfig {
     /// local map's tilt); 0: off. Only used with a [`GroundModel`]. 0.1 m (the simulated DEM's
     /// 5 cm noise plus relief between its posts): 0.05 / 0.1 / 0.2 measured within 3 % of each
     /// other over nine flights (`docs/jointloc.md` §"Ground factors"); a coarser or noisier
-    /// model (a HiRISE DTM: 1 m posts, decimetres) wants its own vertical precision here.
+    /// model (a HiRISE DTM: 1 m posts, decimetres) wants its own vertical precision: the
+    /// factors use the larger of this and the model's stated σ ([`GroundModel::sigma_m`],
+    /// `map.toml`'s `[elevation] sigma_m`).
     pub ground_sigma: f64,
     /// Kernel of the ground-height factors (rocks and crater rims stand off a smooth model).
     pub ground_kernel: RobustKernel,
@@ -49,6 +51,22 @@ pub trait GroundModel: Send + Sync + std::fmt::Debug {
     /// The terrain at world `(x, y)` as a plane (height and slope there); `None` outside the
     /// model.
     fn plane_at(&self, x: f64, y: f64) -> Option<GroundPlane>;
+
+    /// The model's stated vertical precision (1 σ), metres; 0 when it states none. A ground
+    /// factor is never held tighter than this.
+    fn sigma_m(&self) -> f64 {
+        0.0
+    }
+}
+
+/// σ of the ground-height factors: the configured one, never below the model's own precision
+/// (a non-finite or negative stated σ counts as none).
+pub fn ground_factor_sigma(configured: f64, model: f64) -> f64 {
+    if model.is_finite() && model > configured {
+        model
+    } else {
+        configured
+    }
 }
 
 impl Default for LocalBaConfig {
@@ -160,7 +178,7 @@ pub fn local_bundle_adjustment(
                     point: pi,
                     slam_to_world: *s,
                     ground: plane,
-                    sigma: config.ground_sigma,
+                    sigma: ground_factor_sigma(config.ground_sigma, g.sigma_m()),
                     kernel: config.ground_kernel,
                 });
                 stats.ground_factors += 1;
@@ -212,4 +230,19 @@ pub fn local_bundle_adjustment(
     }
     tracing::debug!(?stats, "local BA");
     Ok(stats)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::ground_factor_sigma;
+
+    #[test]
+    fn ground_factors_are_never_tighter_than_the_model() {
+        // The simulated DEM (5 cm) keeps the configured 0.1 m; a HiRISE-like DTM (0.3 m) wins.
+        assert_eq!(ground_factor_sigma(0.1, 0.05), 0.1);
+        assert_eq!(ground_factor_sigma(0.1, 0.3), 0.3);
+        assert_eq!(ground_factor_sigma(0.1, 0.0), 0.1);
+        assert_eq!(ground_factor_sigma(0.1, f64::NAN), 0.1);
+        assert_eq!(ground_factor_sigma(0.1, -1.0), 0.1);
+    }
 }
