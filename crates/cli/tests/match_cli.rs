@@ -93,8 +93,8 @@ fn simulated_pairs_give_the_table_and_json() {
     assert!(m["accuracy"]["@1px"].as_f64().unwrap() <= m["accuracy"]["@5px"].as_f64().unwrap());
     assert_eq!(m["results"].as_array().unwrap().len(), 5);
     assert_eq!(v["fit"], "tight");
-    // The same seed draws the same pairs; the footprint fit scores the same pairs with the
-    // refit over every match within its threshold.
+    // The footprint fit scores the same pairs with the refit over every match within its
+    // threshold.
     let again = jointloc(&[
         "match",
         "--dataset",
@@ -117,53 +117,30 @@ fn simulated_pairs_give_the_table_and_json() {
         serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
     assert_eq!(w["fit"], "footprint");
     assert_eq!(w["footprint_threshold_px"], 20.0);
-    let inliers = |v: &serde_json::Value| -> Vec<u64> {
+    let column = |v: &serde_json::Value, key: &str| -> Vec<serde_json::Value> {
         v["matchers"][0]["results"]
             .as_array()
             .unwrap()
             .iter()
-            .map(|r| r["inliers"].as_u64().unwrap())
+            .map(|r| r[key].clone())
             .collect()
     };
-    for (tight, wide) in inliers(&v).iter().zip(inliers(&w)) {
-        assert!(wide >= *tight, "footprint {wide} < tight {tight} inliers");
+    // The same seed draws the same pairs.
+    assert_eq!(column(&v, "label"), column(&w, "label"));
+    for (tight, wide) in column(&v, "inliers").iter().zip(column(&w, "inliers")) {
+        let (tight, wide) = (tight.as_u64().unwrap(), wide.as_u64().unwrap());
+        assert!(wide >= tight, "footprint {wide} < tight {tight} inliers");
     }
     assert_eq!(w["matchers"][0]["accuracy"]["@10px"], 1.0, "{w}");
-    assert!(
-        failure(&jointloc(&[
-            "match",
-            "--dataset",
-            s(dataset()),
-            "--matcher",
-            "orb",
-            "--fit",
-            "wide"
-        ]))
-        .contains("tight or footprint")
-    );
-    let labels = |v: &serde_json::Value| -> Vec<String> {
-        v["matchers"][0]["results"]
-            .as_array()
-            .unwrap()
-            .iter()
-            .map(|r| r["label"].to_string())
-            .collect()
-    };
-    assert_eq!(labels(&v), labels(&w));
-    assert!(
-        failure(&jointloc(&[
-            "match",
-            "--dataset",
-            s(dataset()),
-            "--matcher",
-            "orb",
-            "--pairs",
-            "2",
-            "--json",
-            s(&json)
-        ]))
-        .contains("already exists")
-    );
+    for (extra, expected) in [
+        (&["--fit", "wide"][..], "tight or footprint"),
+        (&["--pairs", "2", "--json", s(&json)][..], "already exists"),
+    ] {
+        let mut args = vec!["match", "--dataset", s(dataset()), "--matcher", "orb"];
+        args.extend_from_slice(extra);
+        let err = failure(&jointloc(&args));
+        assert!(err.contains(expected), "{err}");
+    }
 }
 
 #[test]
