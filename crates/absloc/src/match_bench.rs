@@ -11,13 +11,16 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use image::GrayImage;
+use jointloc_features::Features;
 use jointloc_geometry::homography::{HomographyConfig, corner_error, refit_over_footprint};
 use nalgebra::{Matrix3, Point2};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
-use crate::candidate::{AcceptConfig, MatchContext, QueryView, evaluate, matched_points};
+use crate::candidate::{
+    AcceptConfig, Candidate, MatchContext, QueryView, evaluate, matched_points,
+};
 use crate::dataset::UavDataset;
 use crate::error::{AbslocError, Result, io_err, read_gray};
 use crate::ground_truth::{GroundTruthSource, TerrainHeights, true_homography};
@@ -111,6 +114,7 @@ pub struct PairResult {
     /// `null` in JSON).
     pub corner_error_px: Option<f64>,
     pub matches: usize,
+    /// Matches the scored homography was fitted to (its inliers).
     pub inliers: usize,
     pub ms: f64,
 }
@@ -178,23 +182,8 @@ pub fn run_pair(
     let found = evaluate(&ctx, 0, &view, 0, &origin, &reference)?;
     let found = match (found, cfg.fit) {
         (Ok(c), HomographyFit::Footprint) => {
-            let (src, dst) = matched_points(&view.features, &reference, &c.matches, &origin);
-            let to_view = view.normalised.transform.matrix();
-            let h_view = c.h_map_from_frame * to_view.try_inverse().unwrap_or_else(Matrix3::zeros);
-            let fit = refit_over_footprint(
-                &h_view,
-                &src,
-                &dst,
-                cfg.footprint_threshold_px,
-                3,
-                cfg.homography.refine_iterations,
-            )?;
-            let h_frame = fit.h * to_view;
-            Ok((
-                h_frame / h_frame[(2, 2)],
-                c.matches.pairs.len(),
-                fit.inliers.len(),
-            ))
+            let (h_est, inliers) = footprint_homography(&c, &view, &reference, cfg)?;
+            Ok((h_est, c.matches.pairs.len(), inliers))
         }
         (Ok(c), HomographyFit::Tight) => {
             Ok((c.h_map_from_frame, c.matches.pairs.len(), c.inliers.len()))
@@ -222,6 +211,39 @@ pub fn run_pair(
             }
         }
     })
+}
+
+/// The tight estimate of `c` refitted over the footprint ([`HomographyFit::Footprint`]):
+/// frame → reference pixels, and the number of matches it was fitted to. The refit runs in the
+/// normalised view's pixels, where the matches are.
+fn footprint_homography(
+    c: &Candidate,
+    view: &QueryView,
+    reference: &Features,
+    cfg: &BenchConfig,
+) -> Result<(Matrix3<f64>, usize)> {
+    let origin = MapTile {
+        index: 0,
+        x: 0,
+        y: 0,
+        col: 0,
+        row: 0,
+    };
+    let (src, dst) = matched_points(&view.features, reference, &c.matches, &origin);
+    let to_view = view.normalised.transform.matrix();
+    // A similarity of positive scale: invertible. Were it not, the zero start homography is
+    // reported by the refit as degenerate.
+    let h_view = c.h_map_from_frame * to_view.try_inverse().unwrap_or_else(Matrix3::zeros);
+    let fit = refit_over_footprint(
+        &h_view,
+        &src,
+        &dst,
+        cfg.footprint_threshold_px,
+        3,
+        cfg.homography.refine_iterations,
+    )?;
+    let h = fit.h * to_view;
+    Ok((h / h[(2, 2)], fit.inliers.len()))
 }
 
 /// Runs every pair and summarises.
