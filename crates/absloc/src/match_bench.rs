@@ -30,6 +30,15 @@ use crate::tiles::{MapTile, MapTiles};
 /// Corner-error thresholds of the table, pixels.
 pub const THRESHOLDS_PX: [f64; 5] = [1.0, 5.0, 10.0, 50.0, 100.0];
 
+/// The reference image of a pair, as a tile at the map origin: its pixels are the reference's.
+const ORIGIN: MapTile = MapTile {
+    index: 0,
+    x: 0,
+    y: 0,
+    col: 0,
+    row: 0,
+};
+
 /// One pair.
 #[derive(Debug, Clone)]
 pub struct MatchPair {
@@ -172,14 +181,7 @@ pub fn run_pair(
         principal: centre,
         expected_scale: None,
     };
-    let origin = MapTile {
-        index: 0,
-        x: 0,
-        y: 0,
-        col: 0,
-        row: 0,
-    };
-    let found = evaluate(&ctx, 0, &view, 0, &origin, &reference)?;
+    let found = evaluate(&ctx, 0, &view, 0, &ORIGIN, &reference)?;
     let found = match (found, cfg.fit) {
         (Ok(c), HomographyFit::Footprint) => {
             let (h_est, inliers) = footprint_homography(&c, &view, &reference, cfg)?;
@@ -222,14 +224,7 @@ fn footprint_homography(
     reference: &Features,
     cfg: &BenchConfig,
 ) -> Result<(Matrix3<f64>, usize)> {
-    let origin = MapTile {
-        index: 0,
-        x: 0,
-        y: 0,
-        col: 0,
-        row: 0,
-    };
-    let (src, dst) = matched_points(&view.features, reference, &c.matches, &origin);
+    let (src, dst) = matched_points(&view.features, reference, &c.matches, &ORIGIN);
     let to_view = view.normalised.transform.matrix();
     // A similarity of positive scale: invertible. Were it not, the zero start homography is
     // reported by the refit as degenerate.
