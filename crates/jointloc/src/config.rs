@@ -108,48 +108,50 @@ impl JointLocConfig {
         if self.min_fixes < 2 {
             return bad("min_fixes", self.min_fixes.to_string(), "at least 2");
         }
-        if !(self.inlier_threshold_m.is_finite() && self.inlier_threshold_m > 0.0) {
-            return bad(
-                "inlier_threshold_m",
-                self.inlier_threshold_m.to_string(),
-                "must be finite and > 0",
-            );
-        }
-        if !(self.nadir_weight.is_finite() && self.nadir_weight >= 0.0) {
-            return bad(
-                "nadir_weight",
-                self.nadir_weight.to_string(),
-                "must be finite and >= 0",
-            );
-        }
-        if !(self.nadir_sigma_scale.is_finite() && self.nadir_sigma_scale >= 0.0) {
-            return bad(
-                "nadir_sigma_scale",
-                self.nadir_sigma_scale.to_string(),
-                "must be finite and >= 0",
-            );
-        }
-        if !(self.altitude_window_s.is_finite() && self.altitude_window_s >= 0.0) {
-            return bad(
-                "altitude_window_s",
-                self.altitude_window_s.to_string(),
-                "must be finite and >= 0",
-            );
-        }
         let ba = &self.slam.local_mapping.ba;
-        if !(ba.global_sigma.is_finite() && ba.global_sigma > 0.0) {
-            return bad(
-                "slam.local_mapping.ba.global_sigma",
-                ba.global_sigma.to_string(),
+        // Finite and > 0 (`zero_ok` false) or ≥ 0 (true), checked in this order.
+        for (field, value, zero_ok, reason) in [
+            (
+                "inlier_threshold_m",
+                self.inlier_threshold_m,
+                false,
                 "must be finite and > 0",
-            );
-        }
-        if !(ba.ground_sigma.is_finite() && ba.ground_sigma >= 0.0) {
-            return bad(
+            ),
+            (
+                "nadir_weight",
+                self.nadir_weight,
+                true,
+                "must be finite and >= 0",
+            ),
+            (
+                "nadir_sigma_scale",
+                self.nadir_sigma_scale,
+                true,
+                "must be finite and >= 0",
+            ),
+            (
+                "altitude_window_s",
+                self.altitude_window_s,
+                true,
+                "must be finite and >= 0",
+            ),
+            (
+                "slam.local_mapping.ba.global_sigma",
+                ba.global_sigma,
+                false,
+                "must be finite and > 0",
+            ),
+            (
                 "slam.local_mapping.ba.ground_sigma",
-                ba.ground_sigma.to_string(),
+                ba.ground_sigma,
+                true,
                 "must be finite and >= 0 (0: no ground factors)",
-            );
+            ),
+        ] {
+            let in_range = if zero_ok { value >= 0.0 } else { value > 0.0 };
+            if !(value.is_finite() && in_range) {
+                return bad(field, value.to_string(), reason);
+            }
         }
         if let Some(p) = self.start_position
             && !p.iter().all(|v| v.is_finite())
