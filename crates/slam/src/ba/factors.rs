@@ -145,7 +145,7 @@ pub(crate) fn position_prior(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use nalgebra::{DMatrix, UnitQuaternion, Vector6};
+    use nalgebra::{DMatrix, DVector, UnitQuaternion, Vector6};
     use rand::{Rng, SeedableRng};
     use rand_chacha::ChaCha8Rng;
 
@@ -153,6 +153,36 @@ mod tests {
 
     fn perturbed(pose: &WorldToCamera, d: &Vector6<f64>) -> WorldToCamera {
         WorldToCamera(WorldToCamera::exp(d).0 * pose.0)
+    }
+
+    /// Central differences of `f` over the 6 left increments of `pose`.
+    fn numeric_pose_jacobian(
+        pose: &WorldToCamera,
+        f: impl Fn(&WorldToCamera) -> DVector<f64>,
+    ) -> DMatrix<f64> {
+        let columns: Vec<DVector<f64>> = (0..6)
+            .map(|k| {
+                let mut d = Vector6::zeros();
+                d[k] = H;
+                (f(&perturbed(pose, &d)) - f(&perturbed(pose, &-d))) / (2.0 * H)
+            })
+            .collect();
+        DMatrix::from_columns(&columns)
+    }
+
+    /// Central differences of `f` over the 3 coordinates of `x`.
+    fn numeric_point_jacobian(
+        x: &Vector3<f64>,
+        f: impl Fn(&Vector3<f64>) -> DVector<f64>,
+    ) -> DMatrix<f64> {
+        let columns: Vec<DVector<f64>> = (0..3)
+            .map(|k| {
+                let mut d = Vector3::zeros();
+                d[k] = H;
+                (f(&(x + d)) - f(&(x - d))) / (2.0 * H)
+            })
+            .collect();
+        DMatrix::from_columns(&columns)
     }
 
     /// ‖A − B‖_F / max(‖B‖_F, 1).
@@ -195,22 +225,13 @@ mod tests {
                 let x = c + ray * (rng.random_range(30.0..70.0) / ray.norm());
                 let z = Point2::new(rng.random_range(0.0..500.0), rng.random_range(0.0..500.0));
                 let (e, jp, jx) = reprojection_residual(&cam, &pose, &x, &z).unwrap();
-                let mut num_p = DMatrix::zeros(2, 6);
-                for k in 0..6 {
-                    let mut d = Vector6::zeros();
-                    d[k] = H;
-                    let ep = reprojection_residual(&cam, &perturbed(&pose, &d), &x, &z).unwrap();
-                    let em = reprojection_residual(&cam, &perturbed(&pose, &-d), &x, &z).unwrap();
-                    num_p.set_column(k, &((ep.0 - em.0) / (2.0 * H)));
-                }
-                let mut num_x = DMatrix::zeros(2, 3);
-                for k in 0..3 {
-                    let mut d = Vector3::zeros();
-                    d[k] = H;
-                    let ep = reprojection_residual(&cam, &pose, &(x + d), &z).unwrap();
-                    let em = reprojection_residual(&cam, &pose, &(x - d), &z).unwrap();
-                    num_x.set_column(k, &((ep.0 - em.0) / (2.0 * H)));
-                }
+                let e_of = |p: &WorldToCamera, x: &Vector3<f64>| {
+                    DVector::from_column_slice(
+                        reprojection_residual(&cam, p, x, &z).unwrap().0.as_slice(),
+                    )
+                };
+                let num_p = numeric_pose_jacobian(&pose, |p| e_of(p, &x));
+                let num_x = numeric_point_jacobian(&x, |x| e_of(&pose, x));
                 let ana_p = DMatrix::from_column_slice(2, 6, jp.as_slice());
                 let ana_x = DMatrix::from_column_slice(2, 3, jx.as_slice());
                 assert!(rel_err(&num_p, &ana_p) < 1e-6, "{num_p} vs {ana_p}");
@@ -251,14 +272,9 @@ mod tests {
                     .coords
                     - pg;
                 assert!((r - expected).norm() < 1e-9);
-                let mut num = DMatrix::zeros(3, 6);
-                for k in 0..6 {
-                    let mut d = Vector6::zeros();
-                    d[k] = H;
-                    let rp = global_position_residual(&perturbed(&pose, &d), &s, &pg).0;
-                    let rm = global_position_residual(&perturbed(&pose, &-d), &s, &pg).0;
-                    num.set_column(k, &((rp - rm) / (2.0 * H)));
-                }
+                let num = numeric_pose_jacobian(&pose, |p| {
+                    DVector::from_column_slice(global_position_residual(p, &s, &pg).0.as_slice())
+                });
                 let ana = DMatrix::from_column_slice(3, 6, j.as_slice());
                 assert!(rel_err(&num, &ana) < 1e-6, "{num} vs {ana}");
                 // A fix of a point of the camera frame (the optical axis' ground point).
@@ -270,14 +286,9 @@ mod tests {
                 let (r, j) = global_point_residual(&pose, &s, &o, &pg);
                 let point = pose.inverse().transform_point(&Point3::from(o));
                 assert!((r - (s.transform_point(&point).coords - pg)).norm() < 1e-9);
-                let mut num = DMatrix::zeros(3, 6);
-                for k in 0..6 {
-                    let mut d = Vector6::zeros();
-                    d[k] = H;
-                    let rp = global_point_residual(&perturbed(&pose, &d), &s, &o, &pg).0;
-                    let rm = global_point_residual(&perturbed(&pose, &-d), &s, &o, &pg).0;
-                    num.set_column(k, &((rp - rm) / (2.0 * H)));
-                }
+                let num = numeric_pose_jacobian(&pose, |p| {
+                    DVector::from_column_slice(global_point_residual(p, &s, &o, &pg).0.as_slice())
+                });
                 let ana = DMatrix::from_column_slice(3, 6, j.as_slice());
                 assert!(rel_err(&num, &ana) < 1e-6, "{num} vs {ana}");
                 // The position prior is the same factor with the identity similarity.
@@ -310,14 +321,9 @@ mod tests {
                     + ground.slope[0] * (w.x - ground.anchor[0])
                     + ground.slope[1] * (w.y - ground.anchor[1]);
                 assert!((r - (w.z - plane)).abs() < 1e-9);
-                let mut num = DMatrix::zeros(1, 3);
-                for k in 0..3 {
-                    let mut d = Vector3::zeros();
-                    d[k] = H;
-                    let rp = ground_height_residual(&(x + d), &s, &ground).0;
-                    let rm = ground_height_residual(&(x - d), &s, &ground).0;
-                    num[(0, k)] = (rp - rm) / (2.0 * H);
-                }
+                let num = numeric_point_jacobian(&x, |x| {
+                    DVector::from_element(1, ground_height_residual(x, &s, &ground).0)
+                });
                 let ana = DMatrix::from_column_slice(1, 3, j.as_slice());
                 assert!(rel_err(&num, &ana) < 1e-6, "{num} vs {ana}");
             }
