@@ -12,7 +12,9 @@ use std::time::Instant;
 
 use image::GrayImage;
 use jointloc_features::Features;
-use jointloc_geometry::homography::{HomographyConfig, corner_error, refit_over_footprint};
+use jointloc_geometry::homography::{
+    FootprintKernel, HomographyConfig, corner_error, refit_with_kernel,
+};
 use nalgebra::{Matrix3, Point2};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -62,9 +64,12 @@ pub enum HomographyFit {
     #[default]
     Tight,
     /// The tight estimate refitted over every match within
-    /// [`BenchConfig::footprint_threshold_px`] ([`refit_over_footprint`]): the homography of
-    /// the whole footprint, as the ground truth over relief is defined.
+    /// [`BenchConfig::footprint_threshold_px`] ([`jointloc_geometry::homography::refit_over_footprint`]):
+    /// the homography of the whole footprint, as the ground truth over relief is defined.
     Footprint,
+    /// The same refit with each match weighted by Tukey's biweight of its error
+    /// ([`FootprintKernel::Biweight`]): near-miss false matches within the threshold pull less.
+    Biweight,
 }
 
 impl HomographyFit {
@@ -73,6 +78,7 @@ impl HomographyFit {
         match self {
             HomographyFit::Tight => "tight",
             HomographyFit::Footprint => "footprint",
+            HomographyFit::Biweight => "biweight",
         }
     }
 }
@@ -84,7 +90,10 @@ impl std::str::FromStr for HomographyFit {
         match s {
             "tight" => Ok(HomographyFit::Tight),
             "footprint" => Ok(HomographyFit::Footprint),
-            other => Err(format!("unknown fit `{other}` (tight or footprint)")),
+            "biweight" => Ok(HomographyFit::Biweight),
+            other => Err(format!(
+                "unknown fit `{other}` (tight, footprint or biweight)"
+            )),
         }
     }
 }
@@ -97,9 +106,9 @@ pub struct BenchConfig {
     pub homography: HomographyConfig,
     /// Minimum matches and inliers for a homography (fewer: the pair fails, error ∞).
     pub min_inliers: usize,
-    /// The homography that is scored.
-    pub fit: HomographyFit,
-    /// Threshold of the footprint refit, reference pixels: it must admit the parallax of the
+    /// The homographies scored, each from the same matches: one report per fit.
+    pub fits: Vec<HomographyFit>,
+    /// Threshold of the footprint and biweight refits, reference pixels: it must admit the parallax of the
     /// relief (10 m of flight over metres of relief: tens of 5 cm pixels at the corners).
     pub footprint_threshold_px: f64,
 }
@@ -109,7 +118,7 @@ impl Default for BenchConfig {
         Self {
             homography: HomographyConfig::default(),
             min_inliers: 8,
-            fit: HomographyFit::Tight,
+            fits: vec![HomographyFit::Tight],
             footprint_threshold_px: 20.0,
         }
     }
@@ -132,6 +141,8 @@ pub struct PairResult {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct MatchReport {
     pub matcher: String,
+    /// The homography scored.
+    pub fit: HomographyFit,
     pub pairs: usize,
     /// Fraction of pairs under each threshold, keyed `@1px`, `@5px`, ...
     pub accuracy: std::collections::BTreeMap<String, f64>,
@@ -148,12 +159,13 @@ pub fn threshold_key(t: f64) -> String {
     format!("@{t}px")
 }
 
-/// Runs one pair.
+/// Runs one pair: one result per fit of `cfg.fits`, in that order, all from the same matches.
+/// A refit's time is added to the shared time of extraction, matching and the tight fit.
 pub fn run_pair(
     pipeline: &FeaturePipeline,
     pair: &MatchPair,
     cfg: &BenchConfig,
-) -> Result<PairResult> {
+) -> Result<Vec<PairResult>> {
     let start = Instant::now();
     let (w, h) = pair.query.dimensions();
     let centre = ((w as f64 - 1.0) / 2.0, (h as f64 - 1.0) / 2.0);
@@ -182,80 +194,99 @@ pub fn run_pair(
         expected_scale: None,
     };
     let found = evaluate(&ctx, 0, &view, 0, &ORIGIN, &reference)?;
-    let found = match (found, cfg.fit) {
-        (Ok(c), HomographyFit::Footprint) => {
-            let (h_est, inliers) = footprint_homography(&c, &view, &reference, cfg)?;
-            Ok((h_est, c.matches.pairs.len(), inliers))
-        }
-        (Ok(c), HomographyFit::Tight) => {
-            Ok((c.h_map_from_frame, c.matches.pairs.len(), c.inliers.len()))
-        }
-        (Err(rejection), _) => Err(rejection),
-    };
-    let ms = start.elapsed().as_secs_f64() * 1e3;
-    Ok(match found {
-        Ok((h_est, matches, inliers)) => PairResult {
-            label: pair.label.clone(),
-            corner_error_px: Some(corner_error(&h_est, &pair.h_true, w, h))
-                .filter(|e| e.is_finite()),
-            matches,
-            inliers,
-            ms,
-        },
+    let shared_ms = start.elapsed().as_secs_f64() * 1e3;
+    let c = match found {
+        Ok(c) => c,
         Err(rejection) => {
             tracing::debug!(pair = %pair.label, ?rejection, "no homography");
-            PairResult {
+            let failed = PairResult {
                 label: pair.label.clone(),
                 corner_error_px: None,
                 matches: 0,
                 inliers: 0,
-                ms,
-            }
+                ms: shared_ms,
+            };
+            return Ok(vec![failed; cfg.fits.len()]);
         }
-    })
+    };
+    let mut results = Vec::with_capacity(cfg.fits.len());
+    for &fit in &cfg.fits {
+        let refit_start = Instant::now();
+        let (h_est, inliers) = match fit {
+            HomographyFit::Tight => (c.h_map_from_frame, c.inliers.len()),
+            HomographyFit::Footprint => {
+                footprint_homography(&c, &view, &reference, cfg, FootprintKernel::Hard)?
+            }
+            HomographyFit::Biweight => {
+                footprint_homography(&c, &view, &reference, cfg, FootprintKernel::Biweight)?
+            }
+        };
+        results.push(PairResult {
+            label: pair.label.clone(),
+            corner_error_px: Some(corner_error(&h_est, &pair.h_true, w, h))
+                .filter(|e| e.is_finite()),
+            matches: c.matches.pairs.len(),
+            inliers,
+            ms: shared_ms + refit_start.elapsed().as_secs_f64() * 1e3,
+        });
+    }
+    Ok(results)
 }
 
-/// The tight estimate of `c` refitted over the footprint ([`HomographyFit::Footprint`]):
-/// frame → reference pixels, and the number of matches it was fitted to. The refit runs in the
-/// normalised view's pixels, where the matches are.
+/// The tight estimate of `c` refitted over the footprint ([`HomographyFit::Footprint`],
+/// [`HomographyFit::Biweight`]): frame → reference pixels, and the number of matches it was
+/// fitted to. The refit runs in the normalised view's pixels, where the matches are.
 fn footprint_homography(
     c: &Candidate,
     view: &QueryView,
     reference: &Features,
     cfg: &BenchConfig,
+    kernel: FootprintKernel,
 ) -> Result<(Matrix3<f64>, usize)> {
     let (src, dst) = matched_points(&view.features, reference, &c.matches, &ORIGIN);
     let to_view = view.normalised.transform.matrix();
     // A similarity of positive scale: invertible. Were it not, the zero start homography is
     // reported by the refit as degenerate.
     let h_view = c.h_map_from_frame * to_view.try_inverse().unwrap_or_else(Matrix3::zeros);
-    let fit = refit_over_footprint(
+    let passes = match kernel {
+        FootprintKernel::Hard => 3,
+        FootprintKernel::Biweight => 10,
+    };
+    let fit = refit_with_kernel(
         &h_view,
         &src,
         &dst,
         cfg.footprint_threshold_px,
-        3,
+        kernel,
+        passes,
         cfg.homography.refine_iterations,
     )?;
     let h = fit.h * to_view;
     Ok((h / h[(2, 2)], fit.inliers.len()))
 }
 
-/// Runs every pair and summarises.
+/// Runs every pair and summarises: one report per fit of `cfg.fits`, in that order.
 pub fn run_bench(
     pipeline: &FeaturePipeline,
     pairs: &[MatchPair],
     cfg: &BenchConfig,
-) -> Result<MatchReport> {
-    let mut results = Vec::with_capacity(pairs.len());
+) -> Result<Vec<MatchReport>> {
+    let mut per_fit: Vec<Vec<PairResult>> = vec![Vec::with_capacity(pairs.len()); cfg.fits.len()];
     for p in pairs {
-        results.push(run_pair(pipeline, p, cfg)?);
+        for (fit_results, r) in per_fit.iter_mut().zip(run_pair(pipeline, p, cfg)?) {
+            fit_results.push(r);
+        }
     }
-    Ok(summarise(&pipeline.name, results))
+    Ok(cfg
+        .fits
+        .iter()
+        .zip(per_fit)
+        .map(|(&fit, results)| summarise(&pipeline.name, fit, results))
+        .collect())
 }
 
 /// The table row of `results`.
-pub fn summarise(matcher: &str, results: Vec<PairResult>) -> MatchReport {
+pub fn summarise(matcher: &str, fit: HomographyFit, results: Vec<PairResult>) -> MatchReport {
     let n = results.len().max(1) as f64;
     let accuracy = THRESHOLDS_PX
         .iter()
@@ -271,6 +302,7 @@ pub fn summarise(matcher: &str, results: Vec<PairResult>) -> MatchReport {
     ms.sort_by(f64::total_cmp);
     MatchReport {
         matcher: matcher.to_string(),
+        fit,
         pairs: results.len(),
         accuracy,
         failures: results
@@ -457,7 +489,11 @@ mod tests {
             inliers: 0,
             ms: 2.0,
         };
-        let rep = summarise("m", vec![r(Some(0.5)), r(Some(5.0)), r(Some(7.0)), r(None)]);
+        let rep = summarise(
+            "m",
+            HomographyFit::Tight,
+            vec![r(Some(0.5)), r(Some(5.0)), r(Some(7.0)), r(None)],
+        );
         assert_eq!(rep.accuracy["@1px"], 0.25);
         assert_eq!(rep.accuracy["@5px"], 0.25);
         assert_eq!(rep.accuracy["@10px"], 0.75);

@@ -79,7 +79,7 @@ fn simulated_pairs_give_the_table_and_json() {
     );
     let table = String::from_utf8_lossy(&out.stdout);
     assert!(
-        table.contains("| matcher | pairs | @1px | @5px | @10px | @50px | @100px |"),
+        table.contains("| matcher | fit | pairs | @1px | @5px | @10px | @50px | @100px |"),
         "{table}"
     );
     assert!(table.contains("terrain heightfield"), "{table}");
@@ -92,9 +92,12 @@ fn simulated_pairs_give_the_table_and_json() {
     assert_eq!(m["accuracy"]["@10px"], 1.0, "{m}");
     assert!(m["accuracy"]["@1px"].as_f64().unwrap() <= m["accuracy"]["@5px"].as_f64().unwrap());
     assert_eq!(m["results"].as_array().unwrap().len(), 5);
-    assert_eq!(v["fit"], "tight");
-    // The footprint fit scores the same pairs with the refit over every match within its
-    // threshold.
+    // A simulated pair's ground truth is the whole footprint's homography: by default it is
+    // scored on the biweight refit.
+    assert_eq!(m["fit"], "biweight");
+    assert_eq!(v["fits"], serde_json::json!(["biweight"]));
+    // Several fits score the same pairs from the same matches, one report each, in the order
+    // asked (a repeated name once).
     let again = jointloc(&[
         "match",
         "--dataset",
@@ -109,16 +112,21 @@ fn simulated_pairs_give_the_table_and_json() {
         s(&json),
         "--force",
         "--fit",
-        "footprint",
+        "tight,footprint,tight",
     ]);
     assert!(again.status.success());
-    assert!(String::from_utf8_lossy(&again.stdout).contains("homography scored: footprint"));
-    let w: serde_json::Value =
+    let stdout = String::from_utf8_lossy(&again.stdout);
+    assert!(stdout.contains("homography scored: tight"), "{stdout}");
+    assert!(stdout.contains("homography scored: footprint"), "{stdout}");
+    assert!(stdout.contains("| orb | footprint | 5 |"), "{stdout}");
+    let both: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
-    assert_eq!(w["fit"], "footprint");
-    assert_eq!(w["footprint_threshold_px"], 20.0);
-    let column = |v: &serde_json::Value, key: &str| -> Vec<serde_json::Value> {
-        v["matchers"][0]["results"]
+    assert_eq!(both["fits"], serde_json::json!(["tight", "footprint"]));
+    assert_eq!(both["footprint_threshold_px"], 20.0);
+    assert_eq!(both["matchers"].as_array().unwrap().len(), 2);
+    assert_eq!(both["matchers"][1]["fit"], "footprint");
+    let column = |v: &serde_json::Value, report: usize, key: &str| -> Vec<serde_json::Value> {
+        v["matchers"][report]["results"]
             .as_array()
             .unwrap()
             .iter()
@@ -126,14 +134,26 @@ fn simulated_pairs_give_the_table_and_json() {
             .collect()
     };
     // The same seed draws the same pairs.
-    assert_eq!(column(&v, "label"), column(&w, "label"));
-    for (tight, wide) in column(&v, "inliers").iter().zip(column(&w, "inliers")) {
-        let (tight, wide) = (tight.as_u64().unwrap(), wide.as_u64().unwrap());
-        assert!(wide >= tight, "footprint {wide} < tight {tight} inliers");
+    assert_eq!(column(&v, 0, "label"), column(&both, 0, "label"));
+    assert_eq!(column(&both, 0, "label"), column(&both, 1, "label"));
+    assert_eq!(column(&both, 0, "matches"), column(&both, 1, "matches"));
+    assert_eq!(column(&v, 0, "matches"), column(&both, 0, "matches"));
+    // Both refits keep the tight inliers (within 3 px) and add matches within 20 px.
+    for refit in [column(&v, 0, "inliers"), column(&both, 1, "inliers")] {
+        for (tight, wide) in column(&both, 0, "inliers").iter().zip(refit) {
+            let (tight, wide) = (tight.as_u64().unwrap(), wide.as_u64().unwrap());
+            assert!(wide >= tight, "refit {wide} < tight {tight} inliers");
+        }
     }
-    assert_eq!(w["matchers"][0]["accuracy"]["@10px"], 1.0, "{w}");
+    for report in [
+        &v["matchers"][0],
+        &both["matchers"][0],
+        &both["matchers"][1],
+    ] {
+        assert_eq!(report["accuracy"]["@10px"], 1.0, "{report}");
+    }
     for (extra, expected) in [
-        (&["--fit", "wide"][..], "tight or footprint"),
+        (&["--fit", "wide"][..], "tight, footprint or biweight"),
         (&["--pairs", "2", "--json", s(&json)][..], "already exists"),
     ] {
         let mut args = vec!["match", "--dataset", s(dataset()), "--matcher", "orb"];
@@ -175,7 +195,11 @@ fn pairs_files_work_and_fail_clearly() {
     );
     let table = String::from_utf8_lossy(&out.stdout);
     let row = table.lines().find(|l| l.starts_with("| orb |")).unwrap();
-    assert!(row.starts_with("| orb | 1 | 1.00 | 1.00 |"), "{row}");
+    // A pairs file's homography is exact for every pixel: scored on the tight fit.
+    assert!(
+        row.starts_with("| orb | tight | 1 | 1.00 | 1.00 |"),
+        "{row}"
+    );
     // Malformed lines name the file and line.
     std::fs::write(d.join("bad.txt"), "q.png r.png 1 0 37 0 1 21 0 0\n").unwrap();
     let err = failure(&jointloc(&[

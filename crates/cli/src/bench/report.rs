@@ -193,6 +193,12 @@ impl Report {
             let _ = writeln!(s, "Not run.\n");
             return;
         }
+        let _ = writeln!(
+            s,
+            "Mean corner error of the homography refitted over the footprint with biweight \
+             weights (`jointloc match`'s default on simulated pairs, whose ground truth is the \
+             whole footprint's homography; `--fit tight` gives the paper's RANSAC score).\n"
+        );
         let thresholds: BTreeSet<String> = self
             .matching
             .iter()

@@ -12,9 +12,9 @@
 
 use nalgebra::{Matrix3, Point2};
 
-use super::{HomographyEstimator, HomographyModel, refine_homography};
+use super::{HomographyEstimator, HomographyModel, refine_homography, refine_homography_weighted};
 use crate::error::{GeometryError, Result};
-use crate::ransac::inliers_of;
+use crate::ransac::{Estimator, inliers_of};
 
 /// A footprint refit: the homography and the correspondences it was fitted to.
 #[derive(Debug, Clone, PartialEq)]
@@ -23,6 +23,17 @@ pub struct FootprintFit {
     pub h: Matrix3<f64>,
     /// Correspondences within the threshold of `h`, ascending.
     pub inliers: Vec<usize>,
+}
+
+/// How the correspondences within the threshold count in a refit.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum FootprintKernel {
+    /// All alike: least squares over the set within the threshold.
+    Hard,
+    /// Tukey's biweight `(1 − (e/τ)²)²` of each one's symmetric transfer error `e` at the
+    /// previous estimate: a match 5 px off counts 0.88 under τ = 20 px, one 15 px off 0.19, so
+    /// near-miss false matches pull less than the parallax of true ones.
+    Biweight,
 }
 
 /// Refits `h` over every correspondence whose symmetric transfer error is below
@@ -36,6 +47,29 @@ pub fn refit_over_footprint(
     passes: usize,
     iterations: usize,
 ) -> Result<FootprintFit> {
+    refit_with_kernel(
+        h,
+        src,
+        dst,
+        threshold_px,
+        FootprintKernel::Hard,
+        passes,
+        iterations,
+    )
+}
+
+/// [`refit_over_footprint`] with the correspondences weighted by `kernel`, the weights
+/// recomputed at each pass (iteratively reweighted least squares). With
+/// [`FootprintKernel::Biweight`] the passes stop once no weight moves by more than 1e-3.
+pub fn refit_with_kernel(
+    h: &Matrix3<f64>,
+    src: &[Point2<f64>],
+    dst: &[Point2<f64>],
+    threshold_px: f64,
+    kernel: FootprintKernel,
+    passes: usize,
+    iterations: usize,
+) -> Result<FootprintFit> {
     if !(threshold_px.is_finite() && threshold_px > 0.0) {
         return Err(GeometryError::InvalidConfig {
             field: "footprint threshold_px",
@@ -45,20 +79,44 @@ pub fn refit_over_footprint(
     }
     let est = HomographyEstimator::new(src, dst)?;
     let t2 = threshold_px * threshold_px;
-    let within = |h: &Matrix3<f64>| HomographyModel::new(*h).map(|m| inliers_of(&est, &m, t2));
+    // The set within the threshold and, for the biweight, each one's weight.
+    let within = |h: &Matrix3<f64>| {
+        HomographyModel::new(*h).map(|m| {
+            let set = inliers_of(&est, &m, t2);
+            let weights: Vec<f64> = match kernel {
+                FootprintKernel::Hard => Vec::new(),
+                FootprintKernel::Biweight => set
+                    .iter()
+                    .map(|&i| (1.0 - est.residual_squared(&m, i) / t2).powi(2))
+                    .collect(),
+            };
+            (set, weights)
+        })
+    };
     let mut current = *h / h[(2, 2)];
-    let mut set = within(&current)
+    let (mut set, mut weights) = within(&current)
         .ok_or_else(|| GeometryError::Degenerate("start homography is singular".into()))?;
     for _ in 0..passes {
-        let Some(r) = refine_homography(&current, src, dst, &set, iterations) else {
+        let refined = match kernel {
+            FootprintKernel::Hard => refine_homography(&current, src, dst, &set, iterations),
+            FootprintKernel::Biweight => {
+                refine_homography_weighted(&current, src, dst, &set, &weights, iterations)
+            }
+        };
+        let Some(r) = refined else {
             break;
         };
-        let Some(next) = within(&r.h) else {
+        let Some((next, next_weights)) = within(&r.h) else {
             break;
         };
         current = r.h;
-        let stable = next == set;
+        let stable = next == set
+            && next_weights
+                .iter()
+                .zip(&weights)
+                .all(|(a, b)| (a - b).abs() <= 1e-3);
         set = next;
+        weights = next_weights;
         if stable {
             break;
         }
@@ -152,6 +210,73 @@ mod tests {
         }
     }
 
+    /// Relief matches where one in four true matches is replaced by a near miss, 8–18 px off
+    /// its true position: within the footprint threshold, beyond the tight one.
+    fn matches_with_near_misses(seed: u64) -> (Vec<Point2<f64>>, Vec<Point2<f64>>) {
+        let (src, mut dst) = matches(seed, true);
+        let mut rng = ChaCha8Rng::seed_from_u64(seed + 100);
+        for (k, q) in dst.iter_mut().enumerate() {
+            if k % 6 != 0 && k % 4 == 1 {
+                let (r, a) = (
+                    rng.random_range(8.0..18.0),
+                    rng.random_range(0.0..std::f64::consts::TAU),
+                );
+                *q = Point2::new(q.x + r * a.cos(), q.y + r * a.sin());
+            }
+        }
+        (src, dst)
+    }
+
+    #[test]
+    fn the_biweight_refit_resists_near_misses_that_pull_the_hard_one() {
+        let want = reference();
+        let cfg = HomographyConfig::default();
+        for seed in 0..5 {
+            let (src, dst) = matches_with_near_misses(seed);
+            let tight = estimate_homography(&src, &dst, &cfg).unwrap();
+            let hard = refit_over_footprint(&tight.h, &src, &dst, 20.0, 3, 20).unwrap();
+            let soft = refit_with_kernel(
+                &tight.h,
+                &src,
+                &dst,
+                20.0,
+                FootprintKernel::Biweight,
+                10,
+                20,
+            )
+            .unwrap();
+            let (e_hard, e_soft) = (
+                corner_error(&hard.h, &want, 500, 500),
+                corner_error(&soft.h, &want, 500, 500),
+            );
+            assert!(
+                e_soft < 0.7 * e_hard,
+                "seed {seed}: hard {e_hard:.2} px, biweight {e_soft:.2} px"
+            );
+        }
+        // Without near misses it still follows the whole scene as the hard refit does.
+        for seed in 0..5 {
+            let (src, dst) = matches(seed, true);
+            let tight = estimate_homography(&src, &dst, &cfg).unwrap();
+            let soft = refit_with_kernel(
+                &tight.h,
+                &src,
+                &dst,
+                20.0,
+                FootprintKernel::Biweight,
+                10,
+                20,
+            )
+            .unwrap();
+            let e_tight = corner_error(&tight.h, &want, 500, 500);
+            let e_soft = corner_error(&soft.h, &want, 500, 500);
+            assert!(
+                e_soft < 0.5 * e_tight && e_soft < 1.0,
+                "seed {seed}: tight {e_tight:.2} px, biweight {e_soft:.2} px"
+            );
+        }
+    }
+
     #[test]
     fn bad_thresholds_and_inputs_are_errors() {
         let (src, dst) = matches(0, false);
@@ -160,5 +285,8 @@ mod tests {
         assert!(refit_over_footprint(&h, &src, &dst, f64::NAN, 3, 20).is_err());
         assert!(refit_over_footprint(&h, &src, &dst[1..], 20.0, 3, 20).is_err());
         assert!(refit_over_footprint(&Matrix3::zeros(), &src, &dst, 20.0, 3, 20).is_err());
+        let biweight =
+            |t: f64| refit_with_kernel(&h, &src, &dst, t, FootprintKernel::Biweight, 3, 20);
+        assert!(biweight(-1.0).is_err() && biweight(f64::INFINITY).is_err());
     }
 }

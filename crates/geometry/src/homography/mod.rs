@@ -22,8 +22,11 @@ use serde::{Deserialize, Serialize};
 pub use decompose::{HomographyMotion, decompose_homography};
 pub use dlt::{dlt, minimal_homography};
 pub use estimator::{HomographyEstimator, HomographyModel};
-pub use footprint::{FootprintFit, refit_over_footprint};
-pub use refine::{Matrix4x8, Refinement, refine_homography, symmetric_transfer_jacobian};
+pub use footprint::{FootprintFit, FootprintKernel, refit_over_footprint, refit_with_kernel};
+pub use refine::{
+    Matrix4x8, Refinement, refine_homography, refine_homography_weighted,
+    symmetric_transfer_jacobian,
+};
 
 use crate::error::{GeometryError, Result};
 use crate::ransac::{Estimator, RansacConfig, inliers_of, ransac};

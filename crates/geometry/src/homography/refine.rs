@@ -101,6 +101,8 @@ struct Problem {
     /// Residual block weights `[1/scale_dst², 1/scale_src²]` turning squared normalised errors into
     /// squared pixels.
     w: Vector4<f64>,
+    /// Per-correspondence weights (IRLS), parallel to `s` and `d`; empty for all ones.
+    k: Vec<f64>,
 }
 
 impl Problem {
@@ -111,24 +113,26 @@ impl Problem {
         let mut cost = 0.0;
         match normal {
             None => {
-                for (s, d) in self.s.iter().zip(&self.d) {
+                for (i, (s, d)) in self.s.iter().zip(&self.d).enumerate() {
                     let f = project(&(h * s.push(1.0)))?.0 - d;
                     let b = project(&(h_inv * d.push(1.0)))?.0 - s;
-                    cost += self.w[0] * f.norm_squared() + self.w[2] * b.norm_squared();
+                    cost += self.weight(i)
+                        * (self.w[0] * f.norm_squared() + self.w[2] * b.norm_squared());
                 }
             }
             Some((jtj, jtr)) => {
                 jtj.fill(0.0);
                 jtr.fill(0.0);
-                for (s, d) in self.s.iter().zip(&self.d) {
+                for (i, (s, d)) in self.s.iter().zip(&self.d).enumerate() {
                     let (r, j) = residual_and_jacobian(&h, &h_inv, s, d)?;
-                    let wr = r.component_mul(&self.w);
+                    let w = self.w * self.weight(i);
+                    let wr = r.component_mul(&w);
                     cost += r.dot(&wr);
                     // Upper triangle of JᵀWJ by hand: nalgebra's generic 8×4·4×8 product
                     // dominated the whole estimation.
                     for k in 0..4 {
                         for a in 0..8 {
-                            let wja = self.w[k] * j[(k, a)];
+                            let wja = w[k] * j[(k, a)];
                             jtr[a] += wja * r[k];
                             for b in a..8 {
                                 jtj[(a, b)] += wja * j[(k, b)];
@@ -140,6 +144,10 @@ impl Problem {
             }
         }
         cost.is_finite().then_some(cost)
+    }
+
+    fn weight(&self, i: usize) -> f64 {
+        self.k.get(i).copied().unwrap_or(1.0)
     }
 }
 
@@ -167,6 +175,36 @@ pub fn refine_homography(
     idx: &[usize],
     max_iterations: usize,
 ) -> Option<Refinement> {
+    refine(h, src, dst, idx, Vec::new(), max_iterations)
+}
+
+/// [`refine_homography`] with a weight per correspondence (`weights[k]` for `idx[k]`, finite
+/// and ≥ 0): the cost is `Σₖ weights[k] · (‖e_fwd‖² + ‖e_bwd‖²)`, one step of iteratively
+/// reweighted least squares. `None` also when the lengths differ, a weight is invalid, or fewer
+/// than 4 weights are positive.
+pub fn refine_homography_weighted(
+    h: &Matrix3<f64>,
+    src: &[Point2<f64>],
+    dst: &[Point2<f64>],
+    idx: &[usize],
+    weights: &[f64],
+    max_iterations: usize,
+) -> Option<Refinement> {
+    let valid = weights.len() == idx.len() && weights.iter().all(|w| w.is_finite() && *w >= 0.0);
+    if !valid || weights.iter().filter(|w| **w > 0.0).count() < 4 {
+        return None;
+    }
+    refine(h, src, dst, idx, weights.to_vec(), max_iterations)
+}
+
+fn refine(
+    h: &Matrix3<f64>,
+    src: &[Point2<f64>],
+    dst: &[Point2<f64>],
+    idx: &[usize],
+    k: Vec<f64>,
+    max_iterations: usize,
+) -> Option<Refinement> {
     if idx.len() < 4 {
         return None;
     }
@@ -185,6 +223,7 @@ pub fn refine_homography(
             let (a, b) = (1.0 / (nd.scale * nd.scale), 1.0 / (ns.scale * ns.scale));
             Vector4::new(a, a, b, b)
         },
+        k,
     };
     let mut p = params(&(hn / hn22));
     let mut jtj = Matrix8::zeros();
@@ -287,6 +326,53 @@ mod tests {
                 );
             }
         }
+    }
+
+    #[test]
+    fn weights_scale_each_correspondence_and_zero_drops_it() {
+        let mut rng = ChaCha8Rng::seed_from_u64(5);
+        let h = Matrix3::new(0.9, 0.1, 20.0, -0.05, 1.1, -10.0, 1e-4, -2e-4, 1.0);
+        let src: Vec<Point2<f64>> = (0..60)
+            .map(|_| Point2::new(rng.random_range(0.0..500.0), rng.random_range(0.0..500.0)))
+            .collect();
+        let mut dst: Vec<Point2<f64>> = src
+            .iter()
+            .map(|p| {
+                let q = crate::homography::transfer_point(&h, p);
+                Point2::new(
+                    q.x + rng.random_range(-0.5..0.5),
+                    q.y + rng.random_range(-0.5..0.5),
+                )
+            })
+            .collect();
+        // Ten gross outliers: weight 0 must give the fit of the other fifty alone.
+        for q in dst.iter_mut().take(10) {
+            q.x += 40.0;
+        }
+        let all: Vec<usize> = (0..60).collect();
+        let clean: Vec<usize> = (10..60).collect();
+        let weights: Vec<f64> = all
+            .iter()
+            .map(|&i| if i < 10 { 0.0 } else { 1.0 })
+            .collect();
+        let weighted = refine_homography_weighted(&h, &src, &dst, &all, &weights, 50).unwrap();
+        let alone = refine_homography(&h, &src, &dst, &clean, 50).unwrap();
+        assert!((weighted.h - alone.h).norm() / alone.h.norm() < 1e-8);
+        // Uniform weights of 2: the same optimum at twice the cost.
+        let twos = vec![2.0; 60];
+        let doubled = refine_homography_weighted(&h, &src, &dst, &all, &twos, 50).unwrap();
+        let plain = refine_homography(&h, &src, &dst, &all, 50).unwrap();
+        assert!((doubled.h - plain.h).norm() / plain.h.norm() < 1e-8);
+        assert!((doubled.final_cost - 2.0 * plain.final_cost).abs() < 1e-6 * plain.final_cost);
+        // Invalid weights or too few positive ones: no refinement.
+        let mut bad = weights.clone();
+        bad[20] = f64::NAN;
+        assert!(refine_homography_weighted(&h, &src, &dst, &all, &bad, 50).is_none());
+        bad[20] = -1.0;
+        assert!(refine_homography_weighted(&h, &src, &dst, &all, &bad, 50).is_none());
+        assert!(refine_homography_weighted(&h, &src, &dst, &all, &weights[1..], 50).is_none());
+        let three: Vec<f64> = (0..60).map(|i| if i < 3 { 1.0 } else { 0.0 }).collect();
+        assert!(refine_homography_weighted(&h, &src, &dst, &all, &three, 50).is_none());
     }
 
     #[test]
