@@ -81,6 +81,15 @@ impl HomographyFit {
             HomographyFit::Biweight => "biweight",
         }
     }
+
+    /// The refit's weighting; `None` for the tight fit, which is scored as estimated.
+    fn kernel(self) -> Option<FootprintKernel> {
+        match self {
+            HomographyFit::Tight => None,
+            HomographyFit::Footprint => Some(FootprintKernel::Hard),
+            HomographyFit::Biweight => Some(FootprintKernel::Biweight),
+        }
+    }
 }
 
 impl std::str::FromStr for HomographyFit {
@@ -212,14 +221,9 @@ pub fn run_pair(
     let mut results = Vec::with_capacity(cfg.fits.len());
     for &fit in &cfg.fits {
         let refit_start = Instant::now();
-        let (h_est, inliers) = match fit {
-            HomographyFit::Tight => (c.h_map_from_frame, c.inliers.len()),
-            HomographyFit::Footprint => {
-                footprint_homography(&c, &view, &reference, cfg, FootprintKernel::Hard)?
-            }
-            HomographyFit::Biweight => {
-                footprint_homography(&c, &view, &reference, cfg, FootprintKernel::Biweight)?
-            }
+        let (h_est, inliers) = match fit.kernel() {
+            None => (c.h_map_from_frame, c.inliers.len()),
+            Some(kernel) => footprint_homography(&c, &view, &reference, cfg, kernel)?,
         };
         results.push(PairResult {
             label: pair.label.clone(),

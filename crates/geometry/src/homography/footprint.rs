@@ -79,18 +79,17 @@ pub fn refit_with_kernel(
     }
     let est = HomographyEstimator::new(src, dst)?;
     let t2 = threshold_px * threshold_px;
-    // The set within the threshold and, for the biweight, each one's weight.
+    // The set within the threshold and, for the biweight, each one's weight (from the same
+    // residual that admitted it).
     let within = |h: &Matrix3<f64>| {
-        HomographyModel::new(*h).map(|m| {
-            let set = inliers_of(&est, &m, t2);
-            let weights: Vec<f64> = match kernel {
-                FootprintKernel::Hard => Vec::new(),
-                FootprintKernel::Biweight => set
-                    .iter()
-                    .map(|&i| (1.0 - est.residual_squared(&m, i) / t2).powi(2))
-                    .collect(),
-            };
-            (set, weights)
+        HomographyModel::new(*h).map(|m| match kernel {
+            FootprintKernel::Hard => (inliers_of(&est, &m, t2), Vec::new()),
+            FootprintKernel::Biweight => (0..est.len())
+                .filter_map(|i| {
+                    let r2 = est.residual_squared(&m, i);
+                    (r2 < t2).then(|| (i, (1.0 - r2 / t2).powi(2)))
+                })
+                .unzip(),
         })
     };
     let mut current = *h / h[(2, 2)];
