@@ -533,6 +533,11 @@ fn fingerprint(map: &GrayImage, gsd: f64, tiles: &[MapTile], tile: (u32, u32)) -
 pub struct Ground(Option<ElevationModel>);
 
 impl Ground {
+    /// Terrain heights from an elevation model.
+    pub fn from_model(model: ElevationModel) -> Self {
+        Self(Some(model))
+    }
+
     /// Height at world `(x, y)`, metres.
     pub fn height_at(&self, x: f64, y: f64) -> f64 {
         self.0.as_ref().map_or(0.0, |e| e.height_at(x, y))

@@ -278,6 +278,13 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         fus_t.skipped_untracked,
         fus_t.skipped_outage,
     );
+    let terrain = system.terrain_correction();
+    if terrain.updates > 0 {
+        println!(
+            "terrain correction of the fixes: ({:+.3}, {:+.3}) m after {} estimates",
+            terrain.offset.x, terrain.offset.y, terrain.updates
+        );
+    }
     println!(
         "median ms: absolute localisation {:.1}, ORB {:.1}, tracking {:.1}, local mapping {:.1}, local BA {:.1}",
         median(&fus_t.absolute_ms),
@@ -296,6 +303,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         "first_fix_global": system.fixes().first().map(|f| f.global),
         "first_fix_searched_tiles": system.fixes().first().map(|f| f.searched_tiles),
         "capacity_hz": capacity_hz,
+        "terrain_correction_m": {
+            "x": system.terrain_correction().offset.x,
+            "y": system.terrain_correction().offset.y,
+            "updates": system.terrain_correction().updates,
+        },
     });
     if let Some(r) = &replay {
         summary["realtime"] = serde_json::json!({

@@ -90,6 +90,18 @@ fn fuses_into_the_world_frame_and_refuses_to_overwrite() {
             "seed {seed}: {world} of {frames}\n{stdout}"
         );
         assert!(summary["fixes_used"].as_u64().unwrap() >= 5, "{stdout}");
+        // The map has an elevation model, so the terrain correction ran; on a 5 cm/px map in
+        // the flight's light the fixes share no bias worth a decimetre.
+        let terrain = &summary["terrain_correction_m"];
+        assert!(terrain["updates"].as_u64().unwrap() > 0, "{stdout}");
+        let offset = terrain["x"]
+            .as_f64()
+            .unwrap()
+            .hypot(terrain["y"].as_f64().unwrap());
+        assert!(
+            offset < 0.1,
+            "seed {seed}: terrain correction {offset} m\n{stdout}"
+        );
         // World frame with no alignment: the simulated map is 5 cm/px and carries an
         // elevation model, so z = DEM + altimeter; a few decimetres at most.
         let rmse = summary["ape_translation"]["rmse"].as_f64().unwrap();

@@ -6,6 +6,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::error::{JointLocError, Result};
 use crate::faults::FaultConfig;
+use crate::terrain_shift::TerrainConfig;
 
 /// JointLoc settings; the SLAM and absolute-localisation settings are nested.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -59,6 +60,9 @@ pub struct JointLocConfig {
     pub seed: u64,
     pub slam: SystemConfig,
     pub absloc: AbsLocConfig,
+    /// Correction of the fixes' common bias by where the map points sit on the elevation
+    /// model (`[terrain]`; only with an elevation model in `map.toml`).
+    pub terrain: TerrainConfig,
     /// Fault injection for robustness runs (off by default).
     pub faults: FaultConfig,
 }
@@ -81,6 +85,7 @@ impl Default for JointLocConfig {
             seed: 0,
             slam: SystemConfig::default(),
             absloc: AbsLocConfig::default(),
+            terrain: TerrainConfig::default(),
             faults: FaultConfig::default(),
         }
     }
@@ -103,6 +108,13 @@ impl JointLocConfig {
                 "min_confidence",
                 self.min_confidence.to_string(),
                 "must be in [0, 1]",
+            );
+        }
+        if !(0.0..=1.0).contains(&self.terrain.gain) {
+            return bad(
+                "terrain.gain",
+                self.terrain.gain.to_string(),
+                "must be in [0, 1] (0: off)",
             );
         }
         if self.min_fixes < 2 {
@@ -147,6 +159,30 @@ impl JointLocConfig {
                 true,
                 "must be finite and >= 0 (0: no ground factors)",
             ),
+            (
+                "terrain.sigma_m",
+                self.terrain.sigma_m,
+                false,
+                "must be finite and > 0",
+            ),
+            (
+                "terrain.huber",
+                self.terrain.huber,
+                false,
+                "must be finite and > 0",
+            ),
+            (
+                "terrain.tau_m",
+                self.terrain.tau_m,
+                false,
+                "must be finite and > 0",
+            ),
+            (
+                "terrain.max_offset_m",
+                self.terrain.max_offset_m,
+                true,
+                "must be finite and >= 0",
+            ),
         ] {
             let in_range = if zero_ok { value >= 0.0 } else { value > 0.0 };
             if !(value.is_finite() && in_range) {
@@ -185,6 +221,28 @@ mod tests {
         }
         let mut off = JointLocConfig::default();
         off.slam.local_mapping.ba.ground_sigma = 0.0;
+        assert!(off.validate().is_ok());
+    }
+
+    #[test]
+    fn invalid_terrain_settings_are_rejected_with_their_field() {
+        type Set = fn(&mut JointLocConfig);
+        let cases: [(Set, &str); 4] = [
+            (|c| c.terrain.gain = 1.5, "terrain.gain"),
+            (|c| c.terrain.gain = f64::NAN, "terrain.gain"),
+            (|c| c.terrain.tau_m = 0.0, "terrain.tau_m"),
+            (|c| c.terrain.max_offset_m = -1.0, "terrain.max_offset_m"),
+        ];
+        for (set, field) in cases {
+            let mut c = JointLocConfig::default();
+            set(&mut c);
+            match c.validate() {
+                Err(JointLocError::InvalidConfig { field: f, .. }) => assert_eq!(f, field),
+                other => panic!("{field}: {other:?}"),
+            }
+        }
+        let mut off = JointLocConfig::default();
+        off.terrain.gain = 0.0;
         assert!(off.validate().is_ok());
     }
 }

@@ -6,6 +6,8 @@
 //! - [`alignment`]: the robust, confidence-weighted SLAM→world similarity;
 //! - [`system`]: the driver [`JointLoc`], sequential or threaded;
 //! - [`altitude`]: altimeter-aided z of the reported poses;
+//! - [`terrain_shift`]: the fixes' common bias, from where the map points sit on the
+//!   elevation model;
 //! - [`faults`]: wrong fixes and outages injected for the robustness evaluation.
 
 pub mod alignment;
@@ -15,6 +17,7 @@ pub mod error;
 pub mod faults;
 pub mod ground;
 pub mod system;
+pub mod terrain_shift;
 mod worker;
 
 pub use config::JointLocConfig;

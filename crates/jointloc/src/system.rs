@@ -9,7 +9,7 @@
 //! are reported in the world frame once an alignment exists (z aided by every frame's
 //! altimeter reading, [`crate::altitude`]), and flagged as not geo-referenced before.
 
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, BTreeSet};
 use std::time::Instant;
 
 use image::GrayImage;
@@ -19,7 +19,7 @@ use jointloc_slam::map::{GlobalFix, KeyFrameId};
 use jointloc_slam::orb::GrayImageView;
 use jointloc_slam::system::System;
 use jointloc_slam::tracking::TrackingState;
-use nalgebra::{Isometry3, Point3};
+use nalgebra::{Isometry3, Point3, Vector3};
 use serde::Serialize;
 
 use crate::alignment::{self, Correspondence, SlamToWorld};
@@ -27,6 +27,7 @@ use crate::altitude::AltitudeFilter;
 use crate::config::JointLocConfig;
 use crate::error::Result;
 use crate::ground::ElevationGround;
+use crate::terrain_shift::{TerrainCorrection, estimate_shift};
 use crate::worker::AbsoluteWorker;
 
 /// An absolute fix as the fusion saw it.
@@ -153,6 +154,8 @@ pub struct JointLoc {
     failures_in_a_row: usize,
     timing: FusionTiming,
     altitude: AltitudeFilter,
+    /// Added to every fix's x, y: the fixes' common bias as the terrain shows it.
+    terrain: TerrainCorrection,
     /// Every frame's (timestamp, altimeter reading), for the keyframe trajectory's z
     /// (16 bytes a frame: 290 kB per hour at 5 Hz).
     altimeter: Vec<(f64, f64)>,
@@ -215,6 +218,7 @@ impl JointLoc {
             failures_in_a_row: 0,
             timing: FusionTiming::default(),
             altitude,
+            terrain: TerrainCorrection::default(),
             altimeter: Vec::new(),
             next_index: 0,
             last_world_pose: None,
@@ -228,6 +232,17 @@ impl JointLoc {
 
     pub fn fixes(&self) -> &[FixRecord] {
         &self.fixes
+    }
+
+    /// The correction added to the fixes' x, y from the terrain (zero when off or without
+    /// an elevation model).
+    pub fn terrain_correction(&self) -> &TerrainCorrection {
+        &self.terrain
+    }
+
+    /// A fix's world point with the terrain correction.
+    fn corrected(&self, p: &Point3<f64>) -> Point3<f64> {
+        p + Vector3::new(self.terrain.offset.x, self.terrain.offset.y, 0.0)
     }
 
     pub fn alignment(&self) -> Option<&SlamToWorld> {
@@ -514,14 +529,14 @@ impl JointLoc {
             let fixes = per_kf.entry(t.keyframe).or_default();
             fixes.push(GlobalFix {
                 point_in_camera: t.ground_in_kf.coords,
-                position: t.world_ground.coords,
+                position: self.corrected(&t.world_ground).coords,
                 weight: t.weight,
                 sigma_scale: 1.0,
             });
             if self.config.nadir_sigma_scale > 0.0 {
                 fixes.push(GlobalFix {
                     point_in_camera: t.centre_in_kf.coords,
-                    position: t.world_camera.coords,
+                    position: self.corrected(&t.world_camera).coords,
                     weight: t.weight,
                     sigma_scale: self.config.nadir_sigma_scale,
                 });
@@ -536,6 +551,43 @@ impl JointLoc {
         }
         self.slam.set_slam_to_world(Some(s));
         self.alignment = Some(fitted);
+        self.correct_by_terrain(first);
+    }
+
+    /// Where the window's map points sit on the elevation model through the new alignment:
+    /// the residual of the fixes' common bias, taken into the correction that the next refits
+    /// add to every fix (see [`crate::terrain_shift`]).
+    fn correct_by_terrain(&mut self, first: usize) {
+        let config = &self.config.terrain;
+        let (Some(a), true) = (&self.alignment, config.gain > 0.0) else {
+            return;
+        };
+        if !self.altitude.ground().has_model() {
+            return;
+        }
+        let map = self.slam.map();
+        let first = match config.window {
+            0 => first,
+            w => self.ties.len().saturating_sub(w),
+        };
+        let window: BTreeSet<KeyFrameId> = self.ties[first..].iter().map(|t| t.keyframe).collect();
+        // Points seen from at least 3 keyframes: triangulated, not fresh two-view guesses.
+        let points: Vec<Point3<f64>> = map
+            .points()
+            .filter(|p| {
+                p.n_observations() >= 3 && p.observations().keys().any(|k| window.contains(k))
+            })
+            .map(|p| a.sim3.transform_point(&Point3::from(p.position)))
+            .collect();
+        if let Some(estimate) = estimate_shift(&points, self.altitude.ground(), config) {
+            self.terrain.update(&estimate, config);
+            tracing::debug!(
+                shift = ?estimate.shift.as_slice(),
+                points = estimate.points,
+                offset = ?self.terrain.offset.as_slice(),
+                "terrain shift"
+            );
+        }
     }
 
     /// The alignment fitted to the ties `range`: the ground point carries the fix's x, y
@@ -547,13 +599,13 @@ impl JointLoc {
             let t = &ties[i];
             pairs.push(Correspondence {
                 slam: t.slam_ground,
-                world: t.world_ground,
+                world: self.corrected(&t.world_ground),
                 weight: t.weight,
                 fix: i,
             });
             pairs.push(Correspondence {
                 slam: t.slam_camera,
-                world: t.world_camera,
+                world: self.corrected(&t.world_camera),
                 weight: t.weight * self.config.nadir_weight,
                 fix: i,
             });

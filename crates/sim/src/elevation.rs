@@ -125,6 +125,15 @@ impl ElevationModel {
         })
     }
 
+    /// A model from heights in metres already in memory, one per post (row-major, rows run
+    /// south); `None` when the grid's size is not the one `info` states.
+    pub fn from_heights(info: ElevationInfo, heights: Grid<f32>) -> Option<Self> {
+        let fits = heights.width == info.width_px as usize
+            && heights.height == info.height_px as usize
+            && heights.data.len() == heights.width * heights.height;
+        fits.then_some(Self { info, heights })
+    }
+
     /// Bilinear height at world (x, y), clamped at the border of the grid.
     pub fn height_at(&self, x: f64, y: f64) -> f64 {
         let i = &self.info;
