@@ -223,6 +223,7 @@ impl Tracker {
             outcome.state = TrackingState::Lost;
             return outcome;
         }
+        tracing::trace!(frame = frame.index, inliers = outcome.inliers, "tracked");
         self.state = TrackingState::Ok;
         outcome.state = TrackingState::Ok;
         frame.reference = self.reference_kf;
