@@ -304,9 +304,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         "first_fix_searched_tiles": system.fixes().first().map(|f| f.searched_tiles),
         "capacity_hz": capacity_hz,
         "terrain_correction_m": {
-            "x": system.terrain_correction().offset.x,
-            "y": system.terrain_correction().offset.y,
-            "updates": system.terrain_correction().updates,
+            "x": terrain.offset.x,
+            "y": terrain.offset.y,
+            "updates": terrain.updates,
         },
     });
     if let Some(r) = &replay {

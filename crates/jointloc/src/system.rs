@@ -15,7 +15,7 @@ use std::time::Instant;
 use image::GrayImage;
 use jointloc_absloc::{AbsLocalizer, Outcome, Prior, heading_from_rotation};
 use jointloc_geometry::{CameraToWorld, PinholeCamera, Sim3};
-use jointloc_slam::map::{GlobalFix, KeyFrameId};
+use jointloc_slam::map::{GlobalFix, KeyFrameId, MapPointId};
 use jointloc_slam::orb::GrayImageView;
 use jointloc_slam::system::System;
 use jointloc_slam::tracking::TrackingState;
@@ -570,13 +570,17 @@ impl JointLoc {
             0 => first,
             w => self.ties.len().saturating_sub(w),
         };
-        let window: BTreeSet<KeyFrameId> = self.ties[first..].iter().map(|t| t.keyframe).collect();
+        // The window keyframes' points, in id order.
+        let ids: BTreeSet<MapPointId> = self.ties[first..]
+            .iter()
+            .filter_map(|t| map.keyframe(t.keyframe))
+            .flat_map(|kf| kf.points.iter().flatten().copied())
+            .collect();
         // Points seen from at least 3 keyframes: triangulated, not fresh two-view guesses.
-        let points: Vec<Point3<f64>> = map
-            .points()
-            .filter(|p| {
-                p.n_observations() >= 3 && p.observations().keys().any(|k| window.contains(k))
-            })
+        let points: Vec<Point3<f64>> = ids
+            .into_iter()
+            .filter_map(|id| map.point(id))
+            .filter(|p| p.n_observations() >= 3)
             .map(|p| a.sim3.transform_point(&Point3::from(p.position)))
             .collect();
         if let Some(estimate) = estimate_shift(&points, self.altitude.ground(), config) {

@@ -85,7 +85,7 @@ pub fn estimate_shift(
     let mut d = Vector3::zeros();
     let mut last = None;
     for _ in 0..config.iterations.max(1) {
-        let (h, g, n, sq, wsum) = normal_equations(points, ground, config, &d);
+        let (h, g, n, _, _) = normal_equations(points, ground, config, &d);
         if n < config.min_points.max(3) {
             return None;
         }
@@ -94,12 +94,12 @@ pub fn estimate_shift(
         let damped = h + Matrix3::from_diagonal(&Vector3::new(1e-9, 1e-9, 0.0)) * h.trace();
         let step = damped.cholesky()?.solve(&g);
         d += step;
-        last = Some((h, n, (sq / wsum.max(1e-12)).sqrt()));
+        last = Some((h, n));
         if step.norm() < 1e-5 {
             break;
         }
     }
-    let (h, n, _) = last?;
+    let (h, n) = last?;
     let (_, _, _, sq, wsum) = normal_equations(points, ground, config, &d);
     d.iter().all(|v| v.is_finite()).then(|| TerrainShift {
         shift: d,
