@@ -147,6 +147,7 @@ impl System {
             return Err(SlamError::NonFinite("camera intrinsics"));
         }
         let extractor = OrbExtractor::new(config.orb.clone())?;
+        config.tracking.initialization.initializer.validate()?;
         let map = Map::new(config.orb.scale_factor, config.orb.n_levels);
         Ok(Self {
             camera,

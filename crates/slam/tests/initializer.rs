@@ -3,7 +3,9 @@
 //! from the altimeter.
 
 use jointloc_geometry::{PinholeCamera, WorldToCamera};
-use jointloc_slam::initializer::{InitializerConfig, ScaleSource, TwoViewModel, initialize};
+use jointloc_slam::initializer::{
+    Altitudes, InitializerConfig, ScaleSource, TwoViewModel, initialize,
+};
 use nalgebra::{Isometry3, Point2, Point3, Translation3, UnitQuaternion, Vector3};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -19,15 +21,31 @@ struct Scene {
     x2: Vec<Point2<f64>>,
     pose2: WorldToCamera,
     altitude: f64,
+    /// Altimeter reading at the second camera.
+    altitude2: f64,
+}
+
+impl Scene {
+    fn altitudes(&self) -> Altitudes {
+        Altitudes {
+            reference: Some(self.altitude),
+            current: Some(self.altitude2),
+        }
+    }
 }
 
 /// A downward camera at `altitude` over terrain with `relief` metres of bumps; the second
 /// camera moved `baseline` metres forward with a small rotation. World z up, camera 1 looks
 /// down (its z axis is world −z).
 fn scene(seed: u64, relief: f64, baseline: f64, outliers: f64) -> Scene {
+    scene_at(seed, 50.0, relief, baseline, outliers)
+}
+
+/// [`scene`] at any altitude; ground points span the first camera's view.
+fn scene_at(seed: u64, altitude: f64, relief: f64, baseline: f64, outliers: f64) -> Scene {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let camera = PinholeCamera::ideal(500.0, 500, 500);
-    let altitude: f64 = 50.0;
+    let half = 0.48 * altitude;
     // Camera 1 frame = SLAM frame: x right, y down (image), z forward (down to the ground).
     let r12 = UnitQuaternion::from_euler_angles(0.01, -0.015, 0.02);
     let c2 = Vector3::new(0.3 * baseline, -baseline, 0.05 * baseline);
@@ -36,8 +54,8 @@ fn scene(seed: u64, relief: f64, baseline: f64, outliers: f64) -> Scene {
     let (mut x1, mut x2) = (Vec::new(), Vec::new());
     while x1.len() < 600 {
         // Ground point (x right, y down in the image) with relief over a horizontal mean plane.
-        let gx = rng.random_range(-24.0..24.0);
-        let gy = rng.random_range(-24.0..24.0);
+        let gx = rng.random_range(-half..half);
+        let gy = rng.random_range(-half..half);
         let p = Vector3::new(gx, gy, altitude - bump(relief, gx, gy));
         let Some(uv1) = camera.project(&Point3::from(p)) else {
             continue;
@@ -72,6 +90,7 @@ fn scene(seed: u64, relief: f64, baseline: f64, outliers: f64) -> Scene {
         x2,
         pose2,
         altitude: altitude - bump(relief, 0.0, 0.0),
+        altitude2: altitude - bump(relief, c2.x, c2.y) - c2.z,
     }
 }
 
@@ -84,7 +103,7 @@ fn check(s: &Scene, expected: TwoViewModel, seed: u64, max_scale_error: f64) {
         &s.x1,
         &s.x2,
         &camera,
-        Some(s.altitude),
+        s.altitudes(),
         &InitializerConfig::default(),
     )
     .unwrap_or_else(|e| panic!("seed {seed}: {e}"));
@@ -157,7 +176,14 @@ fn strong_relief_initialises_from_the_essential_matrix() {
 fn without_altitude_the_median_depth_is_one() {
     let s = scene(7, 5.0, 3.0, 0.1);
     let camera = PinholeCamera::ideal(500.0, 500, 500);
-    let init = initialize(&s.x1, &s.x2, &camera, None, &InitializerConfig::default()).unwrap();
+    let init = initialize(
+        &s.x1,
+        &s.x2,
+        &camera,
+        Altitudes::default(),
+        &InitializerConfig::default(),
+    )
+    .unwrap();
     assert_eq!(init.scale, ScaleSource::MedianDepth);
     let mut z: Vec<f64> = init.points.iter().map(|(_, p)| p.z).collect();
     z.sort_by(f64::total_cmp);
@@ -173,7 +199,7 @@ fn no_baseline_or_too_few_matches_fail_cleanly() {
             &s.x1,
             &s.x2,
             &camera,
-            Some(50.0),
+            s.altitudes(),
             &InitializerConfig::default()
         )
         .is_err()
@@ -183,7 +209,7 @@ fn no_baseline_or_too_few_matches_fail_cleanly() {
         &s.x1[..20],
         &s.x2[..20],
         &camera,
-        Some(50.0),
+        s.altitudes(),
         &InitializerConfig::default(),
     )
     .unwrap_err();
@@ -192,9 +218,30 @@ fn no_baseline_or_too_few_matches_fail_cleanly() {
         &s.x1,
         &s.x2[..10],
         &camera,
-        Some(50.0),
+        s.altitudes(),
         &InitializerConfig::default(),
     )
     .unwrap_err();
     assert!(e.to_string().contains("initialisation failed"), "{e}");
+}
+
+/// An altimeter that saw a 15 % height change the pixels cannot explain vetoes the motion,
+/// and the error says so.
+#[test]
+fn an_inconsistent_altimeter_fails_the_initialisation() {
+    let camera = PinholeCamera::ideal(500.0, 500, 500);
+    let s = scene_at(300, 10.0, 0.3, 1.5, 0.1);
+    let altitudes = Altitudes {
+        reference: Some(s.altitude),
+        current: Some(0.85 * s.altitude2),
+    };
+    let e = initialize(
+        &s.x1,
+        &s.x2,
+        &camera,
+        altitudes,
+        &InitializerConfig::default(),
+    )
+    .unwrap_err();
+    assert!(e.to_string().contains("height ratio"), "{e}");
 }

@@ -10,7 +10,7 @@ use serde::{Deserialize, Serialize};
 use crate::ba::{BaProblem, BundleAdjustmentConfig, Observation, bundle_adjust};
 use crate::error::{Result, SlamError};
 use crate::frame::Frame;
-use crate::initializer::{InitializerConfig, initialize};
+use crate::initializer::{Altitudes, InitializerConfig, initialize};
 use crate::map::{KeyFrame, KeyFrameId, Map};
 use crate::orb::{Match, MatcherConfig, WindowQuery, search_in_window};
 
@@ -90,7 +90,11 @@ pub fn try_initialize(
     }
     let x1: Vec<Point2<f64>> = matches.iter().map(|m| reference.pixel(m.query)).collect();
     let x2: Vec<Point2<f64>> = matches.iter().map(|m| current.pixel(m.train)).collect();
-    let init = initialize(&x1, &x2, camera, reference.altitude, &config.initializer)?;
+    let altitudes = Altitudes {
+        reference: reference.altitude,
+        current: current.altitude,
+    };
+    let init = initialize(&x1, &x2, camera, altitudes, &config.initializer)?;
 
     let mut kf0 = KeyFrame::new(
         reference.index,
