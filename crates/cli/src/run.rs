@@ -58,6 +58,10 @@ pub struct Args {
     /// Robustness test: no absolute localisation for DURATION seconds from START.
     #[arg(long, value_name = "START:DURATION")]
     outage: Option<String>,
+    /// Robustness test: the camera sees uniform grey for DURATION seconds from START (dust,
+    /// glare, a dropped video link); a long one makes the SLAM start a new map.
+    #[arg(long, value_name = "START:DURATION")]
+    blind: Option<String>,
     /// World x, y (metres, map frame) of the take-off, if known (e.g. the lander's position):
     /// the first absolute search starts from the map tiles nearest to it instead of searching
     /// the whole map.
@@ -118,6 +122,12 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             .with_context(|| format!("--outage {o}: expected START:DURATION in seconds"))?;
         config.faults.outage_start_s = Some(start);
         config.faults.outage_duration_s = duration;
+    }
+    if let Some(b) = &args.blind {
+        let (start, duration) = number_pair(b, ':')
+            .with_context(|| format!("--blind {b}: expected START:DURATION in seconds"))?;
+        config.faults.blind_start_s = Some(start);
+        config.faults.blind_duration_s = duration;
     }
     if let Some(p) = &args.start {
         let (x, y) =
@@ -254,7 +264,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let used = system.fixes().iter().filter(|f| f.used).count();
     let inliers = system.fixes().iter().filter(|f| f.inlier).count();
     println!(
-        "{n} frames in {wall:.1} s ({hz:.1} Hz, {mode}); {lost} lost; geo-referenced from frame {}; {written} world poses written",
+        "{n} frames in {wall:.1} s ({hz:.1} Hz, {mode}); {lost} lost; {} new maps after losses; geo-referenced from frame {}; {written} world poses written",
+        system.new_maps(),
         geo_from.map_or("-".into(), |i: usize| i.to_string())
     );
     if let Some(r) = &replay {
@@ -295,6 +306,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     );
     let mut summary = serde_json::json!({
         "frames": n, "world_poses": written, "geo_referenced_from": geo_from, "lost": lost,
+        "new_maps": system.new_maps(),
         "fixes_found": system.fixes().len(), "fixes_used": used, "fixes_inliers": inliers, "hz": hz,
         "mode": mode, "absolute_attempts": fus_t.absolute_ms.len(),
         "skipped_busy": fus_t.skipped_busy, "skipped_outage": fus_t.skipped_outage,

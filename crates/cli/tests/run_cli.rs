@@ -384,6 +384,50 @@ fn fuses_into_the_world_frame_and_refuses_to_overwrite() {
             rmse_w < 1.5 * rmse + 0.05,
             "seed {seed}: {rmse_w} with a wrong first fix vs {rmse}\n{stdout}"
         );
+
+        // A blinded camera (6 s of grey from 8 s): tracking is lost, and after 5 s a new map
+        // starts, is geo-referenced again by the fixes, and both maps are in the outputs.
+        let blind = dir.path().join("blind");
+        let run = jointloc(&[
+            "run",
+            "--dataset",
+            s(&data),
+            "--out",
+            s(&blind),
+            "--matcher",
+            "orb",
+            "--sequential",
+            "--blind",
+            "8:6",
+        ]);
+        let stdout = String::from_utf8_lossy(&run.stdout).into_owned();
+        assert!(run.status.success(), "{stdout}");
+        let b: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(blind.join("summary.json")).unwrap())
+                .unwrap();
+        assert_eq!(b["new_maps"].as_u64(), Some(1), "{stdout}");
+        // (The first map's keyframes may all predate its geo-referencing at 4-6 s.)
+        for (file, before) in [
+            ("trajectory.tum", true),
+            ("trajectory-final.tum", true),
+            ("keyframes.tum", false),
+        ] {
+            let stamps: Vec<i64> = poses(&blind.join(file)).into_keys().collect();
+            assert!(
+                (!before || stamps.iter().any(|&t| t < 8_000_000))
+                    && stamps.iter().any(|&t| t >= 24_000_000),
+                "seed {seed}: {file} covers {:?}..{:?} µs\n{stdout}",
+                stamps.first(),
+                stamps.last()
+            );
+            let blinded = 8_000_000..14_000_000;
+            assert!(!stamps.iter().any(|t| blinded.contains(t)), "{file}");
+        }
+        let rmse_b = b["ape_translation"]["rmse"].as_f64().unwrap();
+        assert!(
+            rmse_b < 1.5 * rmse + 0.05,
+            "seed {seed}: {rmse_b} after a new map vs {rmse}\n{stdout}"
+        );
     }
 }
 

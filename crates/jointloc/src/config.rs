@@ -56,6 +56,12 @@ pub struct JointLocConfig {
     /// The same once geo-referenced: the heading then comes from at least `min_fixes`
     /// consistent fixes and the SLAM, and a failure is the matcher's, so sweeps are rare.
     pub sweep_after_failures_aligned: usize,
+    /// After this many seconds of lost tracking without a relocalisation, the SLAM map is set
+    /// aside and a new one initialised, geo-referenced again by the next `min_fixes` fixes
+    /// (0: wait for relocalisation for ever, as ORB-SLAM2). A UAV keeps flying over ground its
+    /// old map never saw, so relocalisation rarely ends a long loss; 5 s is 5 m at 1 m/s,
+    /// half the camera's footprint at 10 m.
+    pub new_map_after_lost_s: f64,
     /// Seed of the alignment RANSAC.
     pub seed: u64,
     pub slam: SystemConfig,
@@ -82,6 +88,7 @@ impl Default for JointLocConfig {
             start_position: None,
             sweep_after_failures: 2,
             sweep_after_failures_aligned: 10,
+            new_map_after_lost_s: 5.0,
             seed: 0,
             slam: SystemConfig::default(),
             absloc: AbsLocConfig::default(),
@@ -146,6 +153,12 @@ impl JointLocConfig {
                 self.altitude_window_s,
                 true,
                 "must be finite and >= 0",
+            ),
+            (
+                "new_map_after_lost_s",
+                self.new_map_after_lost_s,
+                true,
+                "must be finite and >= 0 (0: never)",
             ),
             (
                 "slam.local_mapping.ba.global_sigma",
@@ -225,13 +238,14 @@ mod tests {
     }
 
     #[test]
-    fn invalid_terrain_settings_are_rejected_with_their_field() {
+    fn invalid_terrain_and_recovery_settings_are_rejected_with_their_field() {
         type Set = fn(&mut JointLocConfig);
-        let cases: [(Set, &str); 4] = [
+        let cases: [(Set, &str); 5] = [
             (|c| c.terrain.gain = 1.5, "terrain.gain"),
             (|c| c.terrain.gain = f64::NAN, "terrain.gain"),
             (|c| c.terrain.tau_m = 0.0, "terrain.tau_m"),
             (|c| c.terrain.max_offset_m = -1.0, "terrain.max_offset_m"),
+            (|c| c.new_map_after_lost_s = -1.0, "new_map_after_lost_s"),
         ];
         for (set, field) in cases {
             let mut c = JointLocConfig::default();

@@ -1,5 +1,6 @@
 //! Fault injection for the robustness evaluation (issue #7): absolute fixes replaced by wrong
-//! positions, and an outage during which the absolute localisation is not run. Off by
+//! positions, an outage during which the absolute localisation is not run, and a blinded
+//! camera (frames replaced by a uniform grey: dust, glare, a dropped video link). Off by
 //! default; every draw is a pure function of the seed and the frame index, so runs repeat.
 
 use rand::{Rng, SeedableRng};
@@ -25,6 +26,9 @@ pub struct FaultConfig {
     /// No absolute localisation for timestamps in [start, start + duration) seconds.
     pub outage_start_s: Option<f64>,
     pub outage_duration_s: f64,
+    /// Frames with timestamps in [start, start + duration) seconds are uniform grey.
+    pub blind_start_s: Option<f64>,
+    pub blind_duration_s: f64,
     pub seed: u64,
 }
 
@@ -37,6 +41,8 @@ impl Default for FaultConfig {
             wrong_fix_max_m: 50.0,
             outage_start_s: None,
             outage_duration_s: 30.0,
+            blind_start_s: None,
+            blind_duration_s: 10.0,
             seed: 0,
         }
     }
@@ -75,6 +81,16 @@ impl FaultConfig {
         if let Some(s) = self.outage_start_s.filter(|s| !s.is_finite()) {
             return bad("faults.outage_start_s", s, "must be finite");
         }
+        if !(self.blind_duration_s.is_finite() && self.blind_duration_s >= 0.0) {
+            return bad(
+                "faults.blind_duration_s",
+                self.blind_duration_s,
+                "must be finite and >= 0",
+            );
+        }
+        if let Some(s) = self.blind_start_s.filter(|s| !s.is_finite()) {
+            return bad("faults.blind_start_s", s, "must be finite");
+        }
         Ok(())
     }
 
@@ -82,6 +98,12 @@ impl FaultConfig {
     pub fn in_outage(&self, timestamp: f64) -> bool {
         self.outage_start_s
             .is_some_and(|s| timestamp >= s && timestamp < s + self.outage_duration_s)
+    }
+
+    /// Whether the camera is blinded at `timestamp`.
+    pub fn is_blind(&self, timestamp: f64) -> bool {
+        self.blind_start_s
+            .is_some_and(|s| timestamp >= s && timestamp < s + self.blind_duration_s)
     }
 
     /// How to make the fix of `frame` wrong, if it is to be: `ordinal` counts the fixes found
@@ -151,7 +173,7 @@ mod tests {
     }
 
     #[test]
-    fn outage_covers_its_window_only() {
+    fn outage_and_blindness_cover_their_windows_only() {
         let f = FaultConfig {
             outage_start_s: Some(40.0),
             ..Default::default()
@@ -159,6 +181,19 @@ mod tests {
         assert!(!f.in_outage(39.99) && f.in_outage(40.0) && f.in_outage(69.9));
         assert!(!f.in_outage(70.0));
         assert!(!FaultConfig::default().in_outage(50.0));
+        let blind = FaultConfig {
+            blind_start_s: Some(10.0),
+            blind_duration_s: 5.0,
+            ..Default::default()
+        };
+        assert!(!blind.is_blind(9.9) && blind.is_blind(10.0) && blind.is_blind(14.9));
+        assert!(!blind.is_blind(15.0) && !blind.in_outage(12.0));
+        assert!(!FaultConfig::default().is_blind(12.0));
+        let bad_blind = FaultConfig {
+            blind_duration_s: f64::NAN,
+            ..Default::default()
+        };
+        assert!(bad_blind.validate().is_err());
         let bad = FaultConfig {
             wrong_fix_fraction: 1.5,
             ..Default::default()

@@ -14,6 +14,7 @@ use std::time::Instant;
 
 use image::GrayImage;
 use jointloc_absloc::{AbsLocalizer, Outcome, Prior, heading_from_rotation};
+use jointloc_geometry::trajectory::Trajectory;
 use jointloc_geometry::{CameraToWorld, PinholeCamera, Sim3};
 use jointloc_slam::map::{GlobalFix, KeyFrameId, MapPointId};
 use jointloc_slam::orb::GrayImageView;
@@ -161,9 +162,21 @@ pub struct JointLoc {
     altimeter: Vec<(f64, f64)>,
     next_index: usize,
     last_world_pose: Option<CameraToWorld>,
-    /// Time of the first frame reported in the world frame: the outputs written at the end
-    /// start there too.
+    /// Time of the first frame of the current map reported in the world frame: the outputs
+    /// written at the end start there too.
     first_world_timestamp: Option<f64>,
+    /// Since when tracking has been lost (see [`JointLocConfig::new_map_after_lost_s`]).
+    lost_since: Option<f64>,
+    /// The world-frame trajectories of the maps set aside after a loss, as known then.
+    earlier_maps: Vec<EarlierMap>,
+}
+
+/// A map set aside after a tracking loss: its frames and keyframes in the world frame, through
+/// its own alignment as it stood (`None` when it was never geo-referenced).
+#[derive(Debug)]
+struct EarlierMap {
+    frames: Option<Trajectory>,
+    keyframes: Option<Trajectory>,
 }
 
 impl JointLoc {
@@ -223,7 +236,14 @@ impl JointLoc {
             next_index: 0,
             last_world_pose: None,
             first_world_timestamp: None,
+            lost_since: None,
+            earlier_maps: Vec::new(),
         })
+    }
+
+    /// New maps started after tracking losses (see [`JointLocConfig::new_map_after_lost_s`]).
+    pub fn new_maps(&self) -> usize {
+        self.earlier_maps.len()
     }
 
     pub fn slam(&self) -> &System {
@@ -263,9 +283,17 @@ impl JointLoc {
         let start = Instant::now();
         let index = self.next_index;
         self.next_index += 1;
+        let grey;
+        let image = if self.config.faults.is_blind(timestamp) {
+            grey = GrayImage::from_pixel(image.width(), image.height(), image::Luma([128]));
+            &grey
+        } else {
+            image
+        };
         let r = self
             .slam
             .process(GrayImageView::from(image), timestamp, altitude)?;
+        self.start_new_map_if_lost_for_good(r.state, timestamp)?;
         let mut absolute = Vec::new();
         if index.is_multiple_of(self.config.fusion_every)
             && let Some(alt) = altitude
@@ -342,6 +370,45 @@ impl JointLoc {
             absolute,
             keyframe: r.keyframe,
         })
+    }
+
+    /// Sets the SLAM map aside after [`JointLocConfig::new_map_after_lost_s`] of lost tracking:
+    /// its world-frame trajectories are kept as they stand, and the new map starts without
+    /// ties, alignment or provisional similarity (their SLAM frame is gone), to be
+    /// geo-referenced again by the next fixes. The terrain correction, a bias of the fixes in
+    /// the world frame, carries over; so does the last world pose, the best guess of where
+    /// to search next.
+    fn start_new_map_if_lost_for_good(
+        &mut self,
+        state: TrackingState,
+        timestamp: f64,
+    ) -> Result<()> {
+        if state != TrackingState::Lost {
+            self.lost_since = None;
+            return Ok(());
+        }
+        let since = *self.lost_since.get_or_insert(timestamp);
+        let after = self.config.new_map_after_lost_s;
+        if after <= 0.0 || timestamp - since < after {
+            return Ok(());
+        }
+        self.earlier_maps.push(EarlierMap {
+            frames: self.map_final_trajectory()?,
+            keyframes: self.map_keyframe_trajectory()?,
+        });
+        tracing::warn!(
+            lost_s = timestamp - since,
+            maps = self.earlier_maps.len() + 1,
+            "tracking lost without relocalisation: starting a new map"
+        );
+        self.slam.start_new_map();
+        self.ties.clear();
+        self.alignment = None;
+        self.provisional = None;
+        self.first_world_timestamp = None;
+        self.altitude.clear();
+        self.lost_since = None;
+        Ok(())
     }
 
     /// The next search result of the thread (waiting for it when `wait`), applied.
@@ -431,16 +498,18 @@ impl JointLoc {
     }
 
     /// The search prior from the fused pose: position and heading of the last world pose;
-    /// before the alignment, the current SLAM pose through the provisional one-fix similarity.
+    /// before the alignment, the current SLAM pose through the provisional one-fix similarity
+    /// (after a new map, the last world pose of the old one until then).
     /// Every [`JointLocConfig::sweep_after_failures`]-th search of a failing streak (or
     /// [`JointLocConfig::sweep_after_failures_aligned`]-th once geo-referenced) leaves the
     /// heading out, so the localiser sweeps rotations: the predicted heading may be what is
     /// wrong (a wrong fix or alignment), and with it every search would fail.
     fn prior(&self, slam_pose: Option<CameraToWorld>) -> Prior {
-        let predicted = match (&self.last_world_pose, &self.provisional, slam_pose) {
-            (Some(p), _, _) => Some(*p),
+        // Before the alignment, the provisional one is fresher than a world pose left from a
+        // map set aside after a loss.
+        let predicted = match (&self.alignment, &self.provisional, slam_pose) {
             (None, Some(s), Some(p)) => Some(s.transform_pose(&p)),
-            _ => None,
+            _ => self.last_world_pose,
         };
         let every = if self.alignment.is_some() {
             self.config.sweep_after_failures_aligned
@@ -625,8 +694,14 @@ impl JointLoc {
 
     /// The world-frame keyframe trajectory, known as a whole at the end (empty before the
     /// first alignment); see [`JointLoc::final_trajectory`] for how it is aligned and where it
-    /// starts.
-    pub fn keyframe_trajectory(&self) -> Result<Option<jointloc_geometry::trajectory::Trajectory>> {
+    /// starts. Maps set aside after a loss come first, each through its own alignment.
+    pub fn keyframe_trajectory(&self) -> Result<Option<Trajectory>> {
+        let earlier = self.earlier_maps.iter().map(|m| m.keyframes.as_ref());
+        concat(earlier.chain([self.map_keyframe_trajectory()?.as_ref()]))
+    }
+
+    /// [`JointLoc::keyframe_trajectory`] of the current map alone.
+    fn map_keyframe_trajectory(&self) -> Result<Option<Trajectory>> {
         self.offline_world(&self.slam.keyframe_trajectory()?, &self.slam.trajectory()?)
     }
 
@@ -638,24 +713,27 @@ impl JointLoc {
     /// pose goes through the alignment fitted to the `alignment_window` fixes nearest to it in
     /// time: the latest alignment alone fits the recent fixes, and SLAM drift since an early
     /// frame would carry into it. z is altimeter-aided as online, over a window centred on the
-    /// pose, from every frame's reading.
-    pub fn final_trajectory(&self) -> Result<Option<jointloc_geometry::trajectory::Trajectory>> {
+    /// pose, from every frame's reading. Maps set aside after a loss come first, each through
+    /// its own alignment.
+    pub fn final_trajectory(&self) -> Result<Option<Trajectory>> {
+        let earlier = self.earlier_maps.iter().map(|m| m.frames.as_ref());
+        concat(earlier.chain([self.map_final_trajectory()?.as_ref()]))
+    }
+
+    /// [`JointLoc::final_trajectory`] of the current map alone.
+    fn map_final_trajectory(&self) -> Result<Option<Trajectory>> {
         let frames = self.slam.trajectory()?;
         self.offline_world(&frames, &frames)
     }
 
     /// `slam` in the world frame as known at the end; `frames`: the SLAM's frame trajectory,
     /// whose altimeter readings aid z.
-    fn offline_world(
-        &self,
-        slam: &jointloc_geometry::trajectory::Trajectory,
-        frames: &jointloc_geometry::trajectory::Trajectory,
-    ) -> Result<Option<jointloc_geometry::trajectory::Trajectory>> {
+    fn offline_world(&self, slam: &Trajectory, frames: &Trajectory) -> Result<Option<Trajectory>> {
         let (Some(_), Some(t0)) = (&self.alignment, self.first_world_timestamp) else {
             return Ok(None);
         };
         let keep = slam.timestamps.partition_point(|&t| t < t0);
-        let slam = jointloc_geometry::trajectory::Trajectory::new(
+        let slam = Trajectory::new(
             slam.timestamps[keep..].to_vec(),
             slam.poses[keep..].to_vec(),
         )
@@ -664,7 +742,7 @@ impl JointLoc {
             return Ok(None);
         }
         let mut aligner = self.centred_aligner();
-        let mut world = |t: &jointloc_geometry::trajectory::Trajectory| -> Vec<CameraToWorld> {
+        let mut world = |t: &Trajectory| -> Vec<CameraToWorld> {
             t.timestamps
                 .iter()
                 .zip(&t.poses)
@@ -697,7 +775,7 @@ impl JointLoc {
             }
         }
         Ok(Some(
-            jointloc_geometry::trajectory::Trajectory::new(slam.timestamps.clone(), poses)
+            Trajectory::new(slam.timestamps.clone(), poses)
                 .map_err(jointloc_slam::error::SlamError::from)?,
         ))
     }
@@ -728,6 +806,24 @@ impl JointLoc {
             fits: BTreeMap::new(),
         }
     }
+}
+
+/// The trajectories one after the other (each later than the one before); `None` when all
+/// are.
+fn concat<'a>(parts: impl Iterator<Item = Option<&'a Trajectory>>) -> Result<Option<Trajectory>> {
+    let (mut stamps, mut poses) = (Vec::new(), Vec::new());
+    let mut any = false;
+    for t in parts.flatten() {
+        any = true;
+        stamps.extend_from_slice(&t.timestamps);
+        poses.extend_from_slice(&t.poses);
+    }
+    if !any {
+        return Ok(None);
+    }
+    Ok(Some(
+        Trajectory::new(stamps, poses).map_err(jointloc_slam::error::SlamError::from)?,
+    ))
 }
 
 /// Maps SLAM-frame poses to the world through the alignment of the fixes nearest in time

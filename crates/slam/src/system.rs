@@ -138,6 +138,7 @@ pub struct System {
     timing: Timing,
     next_index: usize,
     last_timestamp: Option<f64>,
+    maps_started: usize,
 }
 
 impl System {
@@ -168,6 +169,7 @@ impl System {
             timing: Timing::default(),
             next_index: 0,
             last_timestamp: None,
+            maps_started: 0,
         })
     }
 
@@ -198,6 +200,33 @@ impl System {
     /// ([`LocalBaConfig::ground_sigma`](crate::local_mapping::LocalBaConfig::ground_sigma)).
     pub fn set_ground(&mut self, ground: Option<Arc<dyn GroundModel>>) {
         self.ground = ground;
+    }
+
+    /// Sets the map aside and starts a new one, which the next frames initialise in a new
+    /// SLAM frame: for a loss that relocalisation cannot end (a UAV lost over ground its map
+    /// never saw). Keyframe and point ids continue, so no id of the old map names anything in
+    /// the new one. The old map's frames and keyframes leave [`Self::trajectory`] and
+    /// [`Self::keyframe_trajectory`]: a caller that wants them reads them first.
+    pub fn start_new_map(&mut self) {
+        tracing::info!(
+            keyframes = self.map.n_keyframes(),
+            points = self.map.n_points(),
+            frame = self.next_index,
+            "new map: the old one is set aside"
+        );
+        self.map = self.map.successor();
+        self.tracker = Tracker::new(self.tracker.config.clone());
+        self.mapper = LocalMapper::new(self.mapper.config);
+        self.slam_to_world = None;
+        self.records.clear();
+        self.culled.clear();
+        self.retired.clear();
+        self.maps_started += 1;
+    }
+
+    /// Maps started by [`Self::start_new_map`] since the first one.
+    pub fn maps_started(&self) -> usize {
+        self.maps_started
     }
 
     /// Declares tracking lost, forgetting the motion model (see [`Tracker::force_lost`]).

@@ -193,3 +193,47 @@ fn relocalises_within_ten_frames_after_a_forced_loss() {
         assert!(results[init..loss_at].iter().all(|r| !r.relocalised));
     }
 }
+
+#[test]
+fn a_new_map_initialises_tracks_and_replaces_the_old_one_in_the_outputs() {
+    let dir = dataset(&CRATER, TerrainKind::Crater, 21, 35.0);
+    let new_at = 60;
+    let mut old_max_kf = None;
+    let (system, results) = run(dir, usize::MAX, |i, s| {
+        if i == new_at {
+            old_max_kf = s.map().keyframes().map(|k| k.id).max();
+            s.start_new_map();
+        }
+    });
+    assert_eq!(system.maps_started(), 1);
+    let back = first_ok(&results[new_at..]);
+    assert!(back <= 10, "initialised {back} frames after the new map");
+    let after = new_at + back;
+    assert!(
+        results[after..]
+            .iter()
+            .all(|r| r.state == TrackingState::Ok)
+    );
+    // Ids continue: nothing of the old map is named in the new one.
+    let old_max_kf = old_max_kf.expect("keyframes before the new map");
+    assert!(system.map().keyframes().all(|k| k.id > old_max_kf));
+    // The outputs hold the new map's frames only, in its own (metric) SLAM frame.
+    let est = system.trajectory().expect("trajectory");
+    assert_eq!(est.len(), results.len() - after);
+    assert!(est.timestamps[0] >= results[new_at].timestamp);
+    let kfs = system.keyframe_trajectory().expect("keyframes");
+    assert!(kfs.timestamps[0] >= results[new_at].timestamp);
+    let gt = Trajectory::read_tum(dir.join("uav/gt.txt"), &TumOptions::default()).expect("gt");
+    let cfg = EvalConfig {
+        align: AlignMode::Sim3,
+        ..EvalConfig::default()
+    };
+    let report = evaluate(&gt, &est, &cfg).expect("evaluation");
+    let rmse = report.ape_translation.stats.rmse;
+    assert!(rmse <= 0.3, "new map: Sim(3) APE RMSE {rmse:.3} m");
+    let scale = report.alignment.expect("aligned").scale;
+    assert!(
+        (scale - 1.0).abs() < 0.15,
+        "new map: alignment scale {scale}"
+    );
+}

@@ -46,6 +46,16 @@ impl Map {
         }
     }
 
+    /// An empty map that continues this one's keyframe and point ids, so that an id of this
+    /// map never names something in the new one (a new map after a tracking loss).
+    pub fn successor(&self) -> Self {
+        Self {
+            next_keyframe: self.next_keyframe,
+            next_point: self.next_point,
+            ..Self::new(self.scale_factor, self.n_levels)
+        }
+    }
+
     pub fn scale_factor(&self) -> f64 {
         self.scale_factor
     }

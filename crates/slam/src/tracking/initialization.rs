@@ -112,7 +112,7 @@ pub fn try_initialize(
         current.grid.clone(),
     );
     kf1.altitude = current.altitude;
-    let mut fresh = Map::new(map.scale_factor(), map.n_levels());
+    let mut fresh = map.successor();
     let k0 = fresh.insert_keyframe(kf0);
     let k1 = fresh.insert_keyframe(kf1);
     let mut points = Vec::new();
