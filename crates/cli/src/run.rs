@@ -232,11 +232,12 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     }
     let wall = start.elapsed().as_secs_f64();
     drop(traj);
-    if let Some(kf) = system.keyframe_trajectory()? {
+    let end = system.end_outputs()?;
+    if let Some(kf) = &end.keyframes {
         kf.write_tum(args.out.join("keyframes.tum"))?;
     }
     let final_path = args.out.join("trajectory-final.tum");
-    let final_traj = system.final_trajectory()?;
+    let final_traj = end.frames;
     if let Some(t) = &final_traj {
         t.write_tum(&final_path)?;
     }
@@ -296,6 +297,19 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             terrain.offset.x, terrain.offset.y, terrain.updates
         );
     }
+    if let Some(b) = &end.final_ba {
+        println!(
+            "final global BA: {} keyframes, {} points, {} fix factors ({} fixes left out), {} \
+             ground factors; {} iterations, {:.0} ms",
+            b.keyframes,
+            b.points,
+            b.global_factors,
+            b.fixes_left_out,
+            b.ground_factors,
+            b.iterations,
+            b.ms
+        );
+    }
     println!(
         "median ms: absolute localisation {:.1}, ORB {:.1}, tracking {:.1}, local mapping {:.1}, local BA {:.1}",
         median(&fus_t.absolute_ms),
@@ -320,6 +334,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             "y": terrain.offset.y,
             "updates": terrain.updates,
         },
+        "final_ba": end.final_ba,
     });
     if let Some(r) = &replay {
         summary["realtime"] = serde_json::json!({

@@ -114,6 +114,11 @@ fn fuses_into_the_world_frame_and_refuses_to_overwrite() {
             rmse_final < 0.3,
             "seed {seed}: final APE rmse {rmse_final}\n{stdout}"
         );
+        // ... after a global BA of the whole map with the fixes.
+        let ba = &summary["final_ba"];
+        assert!(ba["keyframes"].as_u64().unwrap() >= 3, "{stdout}");
+        assert!(ba["global_factors"].as_u64().unwrap() >= 10, "{stdout}");
+        assert!(stdout.contains("final global BA"), "{stdout}");
         // Frames before the alignment are flagged, not invented.
         let traj = std::fs::read_to_string(out.join("trajectory.tum")).unwrap();
         let flagged = traj

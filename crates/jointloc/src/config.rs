@@ -6,6 +6,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::error::{JointLocError, Result};
 use crate::faults::FaultConfig;
+use crate::final_ba::FinalBaConfig;
 use crate::terrain_shift::TerrainConfig;
 
 /// JointLoc settings; the SLAM and absolute-localisation settings are nested.
@@ -69,6 +70,9 @@ pub struct JointLocConfig {
     /// Correction of the fixes' common bias by where the map points sit on the elevation
     /// model (`[terrain]`; only with an elevation model in `map.toml`).
     pub terrain: TerrainConfig,
+    /// Global bundle adjustment of the whole map with every fix, for the outputs written at
+    /// the end (`[final_ba]`, see [`crate::final_ba`]).
+    pub final_ba: FinalBaConfig,
     /// Fault injection for robustness runs (off by default).
     pub faults: FaultConfig,
 }
@@ -93,6 +97,7 @@ impl Default for JointLocConfig {
             slam: SystemConfig::default(),
             absloc: AbsLocConfig::default(),
             terrain: TerrainConfig::default(),
+            final_ba: FinalBaConfig::default(),
             faults: FaultConfig::default(),
         }
     }

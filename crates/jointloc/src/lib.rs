@@ -8,6 +8,7 @@
 //! - [`altitude`]: altimeter-aided z of the reported poses;
 //! - [`terrain_shift`]: the fixes' common bias, from where the map points sit on the
 //!   elevation model;
+//! - [`final_ba`]: the global bundle adjustment behind the outputs written at the end;
 //! - [`faults`]: wrong fixes and outages injected for the robustness evaluation.
 
 pub mod alignment;
@@ -15,6 +16,7 @@ pub mod altitude;
 pub mod config;
 pub mod error;
 pub mod faults;
+pub mod final_ba;
 pub mod ground;
 pub mod system;
 pub mod terrain_shift;
@@ -22,4 +24,4 @@ mod worker;
 
 pub use config::JointLocConfig;
 pub use error::{JointLocError, Result};
-pub use system::{FixRecord, FusedFrame, FusionTiming, JointLoc};
+pub use system::{EndOutputs, FixRecord, FusedFrame, FusionTiming, JointLoc};

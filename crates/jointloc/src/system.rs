@@ -16,6 +16,7 @@ use image::GrayImage;
 use jointloc_absloc::{AbsLocalizer, Outcome, Prior, heading_from_rotation};
 use jointloc_geometry::trajectory::Trajectory;
 use jointloc_geometry::{CameraToWorld, PinholeCamera, Sim3};
+use jointloc_slam::local_mapping::GroundModel;
 use jointloc_slam::map::{GlobalFix, KeyFrameId, MapPointId};
 use jointloc_slam::orb::GrayImageView;
 use jointloc_slam::system::System;
@@ -27,6 +28,7 @@ use crate::alignment::{self, Correspondence, SlamToWorld};
 use crate::altitude::AltitudeFilter;
 use crate::config::JointLocConfig;
 use crate::error::Result;
+use crate::final_ba::{FinalBaStats, FinalTie, RefinedKeyFrames};
 use crate::ground::ElevationGround;
 use crate::terrain_shift::{TerrainCorrection, estimate_shift};
 use crate::worker::AbsoluteWorker;
@@ -169,6 +171,17 @@ pub struct JointLoc {
     lost_since: Option<f64>,
     /// The world-frame trajectories of the maps set aside after a loss, as known then.
     earlier_maps: Vec<EarlierMap>,
+}
+
+/// What [`JointLoc::end_outputs`] gives.
+#[derive(Debug, Clone, PartialEq)]
+pub struct EndOutputs {
+    /// Every tracked frame (`trajectory-final.tum`).
+    pub frames: Option<Trajectory>,
+    /// The keyframes (`keyframes.tum`).
+    pub keyframes: Option<Trajectory>,
+    /// The current map's global BA, when it ran.
+    pub final_ba: Option<FinalBaStats>,
 }
 
 /// A map set aside after a tracking loss: its frames and keyframes in the world frame, through
@@ -392,9 +405,10 @@ impl JointLoc {
         if after <= 0.0 || timestamp - since < after {
             return Ok(());
         }
+        let end = self.map_end_outputs()?;
         self.earlier_maps.push(EarlierMap {
-            frames: self.map_final_trajectory()?,
-            keyframes: self.map_keyframe_trajectory()?,
+            frames: end.frames,
+            keyframes: end.keyframes,
         });
         tracing::warn!(
             lost_s = timestamp - since,
@@ -692,44 +706,106 @@ impl JointLoc {
         )
     }
 
-    /// The world-frame keyframe trajectory, known as a whole at the end (empty before the
-    /// first alignment); see [`JointLoc::final_trajectory`] for how it is aligned and where it
-    /// starts. Maps set aside after a loss come first, each through its own alignment.
-    pub fn keyframe_trajectory(&self) -> Result<Option<Trajectory>> {
-        let earlier = self.earlier_maps.iter().map(|m| m.keyframes.as_ref());
-        concat(earlier.chain([self.map_keyframe_trajectory()?.as_ref()]))
+    /// The outputs known as a whole at the end: every tracked frame and every keyframe in the
+    /// world frame (empty before the first alignment), from the first frame reported in the
+    /// world frame on, as ORB-SLAM2 saves trajectories (through the keyframes' final poses;
+    /// `trajectory.tum` is what was known online). The frames of the two-view initialisation
+    /// before it are left out (up to 1 m off after the map settled, on crater-easy-s103), so
+    /// the online and end files cover the same frames.
+    ///
+    /// Each pose goes through the alignment fitted to the `alignment_window` fixes nearest
+    /// to it in time (the latest alignment alone fits the recent fixes, and SLAM drift since
+    /// an early frame would carry into it); then, with [`JointLocConfig::final_ba`], the
+    /// whole map is bundle-adjusted once more in the world frame with every fix
+    /// ([`crate::final_ba`]). z is altimeter-aided as online, over a window centred on the
+    /// pose, from every frame's reading. Maps set aside after a loss come first, each as it
+    /// was at the loss.
+    pub fn end_outputs(&self) -> Result<EndOutputs> {
+        let current = self.map_end_outputs()?;
+        let frames = self.earlier_maps.iter().map(|m| m.frames.as_ref());
+        let keyframes = self.earlier_maps.iter().map(|m| m.keyframes.as_ref());
+        Ok(EndOutputs {
+            frames: concat(frames.chain([current.frames.as_ref()]))?,
+            keyframes: concat(keyframes.chain([current.keyframes.as_ref()]))?,
+            final_ba: current.final_ba,
+        })
     }
 
-    /// [`JointLoc::keyframe_trajectory`] of the current map alone.
-    fn map_keyframe_trajectory(&self) -> Result<Option<Trajectory>> {
-        self.offline_world(&self.slam.keyframe_trajectory()?, &self.slam.trajectory()?)
-    }
-
-    /// Every tracked frame's world pose as known at the end, through the keyframes' final
-    /// poses (ORB-SLAM2's saved trajectory; `trajectory.tum` is what was known online), from
-    /// the first frame reported in the world frame on: the frames of the two-view
-    /// initialisation before it are left out (up to 1 m off after the map settled, on
-    /// crater-easy-s103), so both files cover the same frames. Each
-    /// pose goes through the alignment fitted to the `alignment_window` fixes nearest to it in
-    /// time: the latest alignment alone fits the recent fixes, and SLAM drift since an early
-    /// frame would carry into it. z is altimeter-aided as online, over a window centred on the
-    /// pose, from every frame's reading. Maps set aside after a loss come first, each through
-    /// its own alignment.
-    pub fn final_trajectory(&self) -> Result<Option<Trajectory>> {
-        let earlier = self.earlier_maps.iter().map(|m| m.frames.as_ref());
-        concat(earlier.chain([self.map_final_trajectory()?.as_ref()]))
-    }
-
-    /// [`JointLoc::final_trajectory`] of the current map alone.
-    fn map_final_trajectory(&self) -> Result<Option<Trajectory>> {
+    /// [`JointLoc::end_outputs`] of the current map alone.
+    fn map_end_outputs(&self) -> Result<EndOutputs> {
+        let none = EndOutputs {
+            frames: None,
+            keyframes: None,
+            final_ba: None,
+        };
+        let (Some(_), Some(_)) = (&self.alignment, self.first_world_timestamp) else {
+            return Ok(none);
+        };
+        let mut aligner = self.centred_aligner();
+        let refined = if self.config.final_ba.enabled {
+            self.refine_map(&mut aligner)?
+        } else {
+            None
+        };
         let frames = self.slam.trajectory()?;
-        self.offline_world(&frames, &frames)
+        let keyframes = self.slam.keyframe_trajectory()?;
+        Ok(EndOutputs {
+            frames: self.offline_world(&frames, &frames, &mut aligner, refined.as_ref())?,
+            keyframes: self.offline_world(&keyframes, &frames, &mut aligner, refined.as_ref())?,
+            final_ba: refined.map(|r| r.stats),
+        })
+    }
+
+    /// The global BA of the current map in the world frame, starting from the local
+    /// alignments, with every fix tied to a keyframe still in the map.
+    fn refine_map(&self, aligner: &mut CentredAligner<'_>) -> Result<Option<RefinedKeyFrames>> {
+        let mut ties = Vec::with_capacity(2 * self.ties.len());
+        for t in &self.ties {
+            ties.push(FinalTie {
+                keyframe: t.keyframe,
+                point_in_camera: t.ground_in_kf,
+                world: self.corrected(&t.world_ground),
+                weight: t.weight,
+                sigma_scale: 1.0,
+            });
+            if self.config.nadir_sigma_scale > 0.0 {
+                ties.push(FinalTie {
+                    keyframe: t.keyframe,
+                    point_in_camera: t.centre_in_kf,
+                    world: self.corrected(&t.world_camera),
+                    weight: t.weight,
+                    sigma_scale: self.config.nadir_sigma_scale,
+                });
+            }
+        }
+        let ground = self
+            .altitude
+            .ground()
+            .has_model()
+            .then(|| ElevationGround(self.altitude.ground().clone()));
+        crate::final_ba::refine(
+            self.slam.map(),
+            self.slam.ideal_camera(),
+            &self.config.slam.local_mapping.ba,
+            &self.config.final_ba,
+            &mut |t| aligner.sim_at(t),
+            &ties,
+            self.config.inlier_threshold_m,
+            ground.as_ref().map(|g| g as &dyn GroundModel),
+            !self.slam.retired_keyframes().is_empty(),
+        )
     }
 
     /// `slam` in the world frame as known at the end; `frames`: the SLAM's frame trajectory,
     /// whose altimeter readings aid z.
-    fn offline_world(&self, slam: &Trajectory, frames: &Trajectory) -> Result<Option<Trajectory>> {
-        let (Some(_), Some(t0)) = (&self.alignment, self.first_world_timestamp) else {
+    fn offline_world(
+        &self,
+        slam: &Trajectory,
+        frames: &Trajectory,
+        aligner: &mut CentredAligner<'_>,
+        refined: Option<&RefinedKeyFrames>,
+    ) -> Result<Option<Trajectory>> {
+        let Some(t0) = self.first_world_timestamp else {
             return Ok(None);
         };
         let keep = slam.timestamps.partition_point(|&t| t < t0);
@@ -741,12 +817,17 @@ impl JointLoc {
         if slam.is_empty() {
             return Ok(None);
         }
-        let mut aligner = self.centred_aligner();
         let mut world = |t: &Trajectory| -> Vec<CameraToWorld> {
             t.timestamps
                 .iter()
                 .zip(&t.poses)
-                .map(|(&ts, p)| aligner.transform(ts, p))
+                .map(|(&ts, p)| {
+                    let s = aligner.sim_at(ts);
+                    match refined {
+                        Some(r) => r.world_pose(ts, &s, p),
+                        None => s.transform_pose(p),
+                    }
+                })
                 .collect()
         };
         let mut poses = world(&slam);
@@ -838,10 +919,11 @@ struct CentredAligner<'a> {
 }
 
 impl CentredAligner<'_> {
-    fn transform(&mut self, timestamp: f64, pose: &CameraToWorld) -> CameraToWorld {
+    /// The SLAM→world similarity at `timestamp`.
+    fn sim_at(&mut self, timestamp: f64) -> Sim3 {
         let latest = self.system.alignment.as_ref().map(|a| a.sim3);
         if self.ties.is_empty() {
-            return latest.unwrap_or_else(Sim3::identity).transform_pose(pose);
+            return latest.unwrap_or_else(Sim3::identity);
         }
         let at = self.times.partition_point(|&x| x < timestamp);
         let start = at
@@ -852,8 +934,6 @@ impl CentredAligner<'_> {
             .fits
             .entry(start)
             .or_insert_with(|| system.fit_ties(ties, start..start + window).map(|f| f.sim3));
-        fit.or(latest)
-            .unwrap_or_else(Sim3::identity)
-            .transform_pose(pose)
+        fit.or(latest).unwrap_or_else(Sim3::identity)
     }
 }

@@ -173,6 +173,12 @@ impl System {
         })
     }
 
+    /// The camera the map's keypoints are measured in (the intrinsics without distortion:
+    /// keypoints are undistorted on extraction), as the bundle adjustments use it.
+    pub fn ideal_camera(&self) -> &PinholeCamera {
+        &self.ideal
+    }
+
     pub fn map(&self) -> &Map {
         &self.map
     }
