@@ -299,12 +299,13 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     }
     if let Some(b) = &end.final_ba {
         println!(
-            "final global BA: {} keyframes, {} points, {} fix factors ({} fixes left out), {} \
+            "final global BA: {} keyframes, {} points, {} fix factors ({} left out: wrong, or \
+             their keyframe retired), {} \
              ground factors; {} iterations, {:.0} ms",
             b.keyframes,
             b.points,
             b.global_factors,
-            b.fixes_left_out,
+            b.factors_left_out,
             b.ground_factors,
             b.iterations,
             b.ms

@@ -71,9 +71,9 @@ pub struct FinalBaStats {
     pub points: usize,
     pub observations: usize,
     pub global_factors: usize,
-    /// Fixes left out: farther than the inlier threshold from their keyframe's initial world
-    /// point, or tied to a keyframe no longer in the map.
-    pub fixes_left_out: usize,
+    /// Fix factors left out: their point farther than the inlier threshold from the fix at
+    /// the start (a wrong fix), or their keyframe no longer in the map (retired by the cap).
+    pub factors_left_out: usize,
     pub ground_factors: usize,
     pub iterations: usize,
     pub initial_cost: f64,
@@ -139,7 +139,7 @@ pub fn refine(
     };
     for tie in ties {
         let Some(&(ci, s)) = index.get(&tie.keyframe) else {
-            stats.fixes_left_out += 1;
+            stats.factors_left_out += 1;
             continue;
         };
         // The camera frame in metres: a similarity scales it by s.
@@ -149,7 +149,7 @@ pub fn refine(
             .inverse()
             .transform_point(&Point3::from(point_in_camera));
         if (world_now - tie.world).norm() > inlier_threshold_m {
-            stats.fixes_left_out += 1;
+            stats.factors_left_out += 1;
             continue;
         }
         problem.add_global_factor(GlobalPositionFactor {
@@ -463,7 +463,7 @@ mod tests {
             .unwrap()
             .unwrap();
             eprintln!("seed {seed}: {:?}", refined.stats);
-            assert_eq!(refined.stats.fixes_left_out, 2, "seed {seed}");
+            assert_eq!(refined.stats.factors_left_out, 2, "seed {seed}");
             assert_eq!(
                 refined.stats.global_factors,
                 2 * KEYFRAMES - 2,
