@@ -50,6 +50,7 @@ fn writes_the_report_and_refuses_to_replace_it() {
         "| crater | easy | orb |",
         "## 2. Visual localisation (paper Table VI)",
         "| crater | easy | JointLoc (orb) |",
+        "| crater | easy | JointLoc, as known at the end (orb) | 1 |",
         "| crater | easy | JointLoc real time (orb, 4× camera rate) | 1 |",
         "| crater | easy | VO only (Sim(3)-aligned) | 1 |",
         "| crater | easy | Absolute only (orb, every 10, 2-D) | 1 |",

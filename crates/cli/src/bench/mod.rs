@@ -490,6 +490,18 @@ fn localisation_rows(
         timing,
     );
     rep.localisation.push(row);
+    // The same run's output as known at the end (`trajectory-final.tum`: the whole map
+    // bundle-adjusted once more with every fix), an after-the-flight figure like VO's.
+    let (row, _) = loc_row(
+        d,
+        format!("JointLoc, as known at the end ({})", plan.matcher),
+        &done,
+        &dir.join("trajectory-final.tum"),
+        AlignMode::None,
+        false,
+        None,
+    );
+    rep.localisation.push(row);
     // The same in the real-time mode: absolute localisation on its own thread, frames replayed
     // at their timestamps as the camera delivers them (fixes due while it is busy are skipped).
     let (done, dir) = jointloc_run(

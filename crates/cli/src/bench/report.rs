@@ -152,7 +152,9 @@ impl Report {
             s,
             "Cells are mean ± std over seeds (a single value when there is one seed). APE is the \
              translation error in metres computed as evo does (`jointloc eval`). JointLoc rows are \
-             evaluated **without alignment** (its output is in the world frame); VO-only rows are \
+             evaluated **without alignment** (its output is in the world frame): the output online \
+             (`trajectory.tum`) and, from the same run, as known at the end \
+             (`trajectory-final.tum`, after a global BA with every fix); VO-only rows are \
              Sim(3)-aligned; absolute-only rows are 2-D errors of the fixes. Hz of a JointLoc row is \
              what its frame loop sustains (frames over the time spent processing them; the \
              real-time row replays frames at their timestamps, and its waits do not count); of a \
