@@ -742,8 +742,13 @@ impl JointLoc {
             return Ok(none);
         };
         let mut aligner = self.centred_aligner();
+        // The refinement is an improvement, not a requirement: if it fails, the end outputs
+        // still go out through the local alignments.
         let refined = if self.config.final_ba.enabled {
-            self.refine_map(&mut aligner)?
+            self.refine_map(&mut aligner).unwrap_or_else(|e| {
+                tracing::warn!(error = %e, "final global BA failed; end outputs through the local alignments");
+                None
+            })
         } else {
             None
         };
