@@ -84,6 +84,7 @@ pub struct FinalBaStats {
 /// A keyframe after the global BA.
 #[derive(Debug, Clone, Copy, PartialEq)]
 struct Refined {
+    id: KeyFrameId,
     timestamp: f64,
     /// Camera-to-world in the SLAM frame (the map's current pose).
     slam: CameraToWorld,
@@ -220,6 +221,7 @@ pub fn refine(
         .iter()
         .zip(slam_poses)
         .map(|(kf, slam)| Refined {
+            id: kf.id,
             timestamp: kf.timestamp,
             slam,
             world: result.cameras[index[&kf.id].0].inverse(),
@@ -236,15 +238,27 @@ pub fn refine(
 }
 
 impl RefinedKeyFrames {
-    /// The world pose of a SLAM pose at time `t`, given the local alignment `s` at `t`: the
-    /// pose relative to the refined keyframes around it in time (in metres through `s`),
-    /// interpolated between the two. Before the first refined keyframe, when older ones were
-    /// retired, the local alignment alone (the BA did not see them).
-    pub fn world_pose(&self, t: f64, s: &Sim3, slam: &CameraToWorld) -> CameraToWorld {
+    /// The world pose of a SLAM pose at time `t`, given the local alignment `s` at `t`, and
+    /// the keyframe the SLAM expresses it through (`reference`, as ORB-SLAM2 saves frames):
+    /// its pose relative to that keyframe, in metres through `s`, on the refined keyframe.
+    /// Without a refined reference, relative to the refined keyframes around `t`,
+    /// interpolated between the two (translation linearly, rotation along the geodesic);
+    /// before the first refined keyframe, when older ones were retired, the local alignment
+    /// alone (the BA did not see them).
+    pub fn world_pose(
+        &self,
+        t: f64,
+        s: &Sim3,
+        slam: &CameraToWorld,
+        reference: Option<KeyFrameId>,
+    ) -> CameraToWorld {
         let local = s.transform_pose(slam);
-        let after = self.keyframes.partition_point(|k| k.timestamp <= t);
         let correction =
             |k: &Refined| -> Isometry3<f64> { k.world.0 * s.transform_pose(&k.slam).0.inverse() };
+        if let Some(k) = reference.and_then(|id| self.keyframes.iter().find(|k| k.id == id)) {
+            return CameraToWorld(correction(k) * local.0);
+        }
+        let after = self.keyframes.partition_point(|k| k.timestamp <= t);
         let c = if after == 0 {
             if self.older_exist {
                 return local;
@@ -476,7 +490,9 @@ mod tests {
                 .collect();
             let after: Vec<CameraToWorld> = kfs
                 .iter()
-                .map(|k| refined.world_pose(k.timestamp, &windowed(k.timestamp), &k.pose.inverse()))
+                .map(|k| {
+                    refined.world_pose(k.timestamp, &windowed(k.timestamp), &k.pose.inverse(), None)
+                })
                 .collect();
             let (e0, e1) = (rmse(&before, &sc.truth), rmse(&after, &sc.truth));
             assert!(e0 > 0.1, "seed {seed}: the windows leave {e0} m");
@@ -486,7 +502,9 @@ mod tests {
             let (k0, k1) = (kfs[10], kfs[11]);
             let t = 0.5 * (k0.timestamp + k1.timestamp);
             let mid_slam = CameraToWorld(k0.pose.inverse().0.lerp_slerp(&k1.pose.inverse().0, 0.5));
-            let mid = refined.world_pose(t, &windowed(t), &mid_slam).centre();
+            let mid = refined
+                .world_pose(t, &windowed(t), &mid_slam, None)
+                .centre();
             let expected = nalgebra::center(&after[10].centre(), &after[11].centre());
             assert!(
                 (mid - expected).norm() < 0.02,

@@ -173,6 +173,13 @@ pub struct JointLoc {
     earlier_maps: Vec<EarlierMap>,
 }
 
+/// A SLAM-frame trajectory with, per pose, the keyframe the SLAM expresses it through
+/// (`None`: the poses are keyframes themselves).
+struct Referenced<'a> {
+    trajectory: &'a Trajectory,
+    keyframes: Option<&'a [KeyFrameId]>,
+}
+
 /// What [`JointLoc::end_outputs`] gives.
 #[derive(Debug, Clone, PartialEq)]
 pub struct EndOutputs {
@@ -753,10 +760,20 @@ impl JointLoc {
             None
         };
         let frames = self.slam.trajectory()?;
+        let frame_keyframes = self.slam.trajectory_keyframes();
+        let frames = Referenced {
+            trajectory: &frames,
+            keyframes: Some(&frame_keyframes),
+        };
         let keyframes = self.slam.keyframe_trajectory()?;
+        let keyframes = Referenced {
+            trajectory: &keyframes,
+            keyframes: None,
+        };
+        let refined = refined.as_ref();
         Ok(EndOutputs {
-            frames: self.offline_world(&frames, &frames, &mut aligner, refined.as_ref())?,
-            keyframes: self.offline_world(&keyframes, &frames, &mut aligner, refined.as_ref())?,
+            frames: self.offline_world(&frames, &frames, &mut aligner, refined)?,
+            keyframes: self.offline_world(&keyframes, &frames, &mut aligner, refined)?,
             final_ba: refined.map(|r| r.stats),
         })
     }
@@ -805,38 +822,37 @@ impl JointLoc {
     /// whose altimeter readings aid z.
     fn offline_world(
         &self,
-        slam: &Trajectory,
-        frames: &Trajectory,
+        slam: &Referenced<'_>,
+        frames: &Referenced<'_>,
         aligner: &mut CentredAligner<'_>,
         refined: Option<&RefinedKeyFrames>,
     ) -> Result<Option<Trajectory>> {
         let Some(t0) = self.first_world_timestamp else {
             return Ok(None);
         };
-        let keep = slam.timestamps.partition_point(|&t| t < t0);
-        let slam = Trajectory::new(
-            slam.timestamps[keep..].to_vec(),
-            slam.poses[keep..].to_vec(),
-        )
-        .map_err(jointloc_slam::error::SlamError::from)?;
-        if slam.is_empty() {
+        let keep = slam.trajectory.timestamps.partition_point(|&t| t < t0);
+        if keep == slam.trajectory.len() {
             return Ok(None);
         }
-        let mut world = |t: &Trajectory| -> Vec<CameraToWorld> {
-            t.timestamps
-                .iter()
-                .zip(&t.poses)
-                .map(|(&ts, p)| {
+        let mut world = |r: &Referenced<'_>, from: usize| -> Vec<CameraToWorld> {
+            let t = r.trajectory;
+            (from..t.len())
+                .map(|i| {
+                    let (ts, p) = (t.timestamps[i], &t.poses[i]);
                     let s = aligner.sim_at(ts);
                     match refined {
-                        Some(r) => r.world_pose(ts, &s, p),
+                        Some(refined) => {
+                            let reference = r.keyframes.and_then(|k| k.get(i).copied());
+                            refined.world_pose(ts, &s, p, reference)
+                        }
                         None => s.transform_pose(p),
                     }
                 })
                 .collect()
         };
-        let mut poses = world(&slam);
-        let frame_poses = world(frames);
+        let mut poses = world(slam, keep);
+        let frame_poses = world(frames, 0);
+        let (stamps, frames) = (&slam.trajectory.timestamps[keep..], frames.trajectory);
         let readings: Vec<Option<f64>> = frames
             .timestamps
             .iter()
@@ -853,7 +869,7 @@ impl JointLoc {
             &readings,
             self.altitude.ground(),
             self.altitude.window_s(),
-            &slam.timestamps,
+            stamps,
         );
         for (p, dz) in poses.iter_mut().zip(shifts) {
             if let Some(dz) = dz {
@@ -861,7 +877,7 @@ impl JointLoc {
             }
         }
         Ok(Some(
-            Trajectory::new(slam.timestamps.clone(), poses)
+            Trajectory::new(stamps.to_vec(), poses)
                 .map_err(jointloc_slam::error::SlamError::from)?,
         ))
     }

@@ -284,6 +284,7 @@ impl System {
         let t2 = Instant::now();
         let c2 = thread_cpu_ns();
         let mut keyframe = None;
+        let mut record = None;
         if outcome.initialised {
             self.mapper.add_recent(&self.map);
             keyframe = self.map.last_keyframe().map(|k| k.id);
@@ -292,6 +293,10 @@ impl System {
         {
             self.tracker.keyframe_inserted(&frame, kf);
             frame.reference = Some(kf);
+            // Against its new keyframe as tracked, before the local BA moves that keyframe
+            // (ORB-SLAM2 records the relative pose in tracking): the frame *is* the keyframe,
+            // and its saved pose must be the keyframe's final one.
+            record = self.frame_record(&frame, timestamp);
             let report = self.mapper.process(
                 &mut self.map,
                 kf,
@@ -319,14 +324,8 @@ impl System {
         cpu.frame_ms.extend(cpu_ms(c0, c3));
         self.timing.tracking_ms.push(ms(t2 - t1));
         self.timing.frame_ms.push(ms(t3 - t0));
-        if let (Some(pose), Some(reference)) = (frame.pose, frame.reference)
-            && let Some(ref_pose) = self.keyframe_pose(reference)
-        {
-            self.records.push(FrameRecord {
-                timestamp,
-                reference,
-                relative: pose.0 * ref_pose.0.inverse(),
-            });
+        if let Some(r) = record.or_else(|| self.frame_record(&frame, timestamp)) {
+            self.records.push(r);
         }
         Ok(FrameResult {
             index,
@@ -336,6 +335,17 @@ impl System {
             inliers: outcome.inliers,
             keyframe,
             relocalised: outcome.relocalised,
+        })
+    }
+
+    /// The frame's pose relative to its reference keyframe as that keyframe is now.
+    fn frame_record(&self, frame: &Frame, timestamp: f64) -> Option<FrameRecord> {
+        let (pose, reference) = (frame.pose?, frame.reference?);
+        let ref_pose = self.keyframe_pose(reference)?;
+        Some(FrameRecord {
+            timestamp,
+            reference,
+            relative: pose.0 * ref_pose.0.inverse(),
         })
     }
 
@@ -407,6 +417,27 @@ impl System {
             }
         }
         Ok(Trajectory::new(stamps, poses)?)
+    }
+
+    /// For each pose of [`System::trajectory`], the keyframe it is expressed through: its
+    /// reference keyframe, or, when that was culled, the keyframe the culling chain ends at
+    /// (in the map, or retired by the cap).
+    pub fn trajectory_keyframes(&self) -> Vec<KeyFrameId> {
+        self.records
+            .iter()
+            .filter_map(|r| self.keyframe_root(r.reference))
+            .collect()
+    }
+
+    /// The keyframe at the end of `id`'s culling chain (itself when not culled).
+    fn keyframe_root(&self, mut id: KeyFrameId) -> Option<KeyFrameId> {
+        for _ in 0..10_000 {
+            if self.map.keyframe(id).is_some() || self.retired.contains_key(&id) {
+                return Some(id);
+            }
+            id = self.culled.get(&id)?.0;
+        }
+        None
     }
 
     /// Camera-to-world poses of the keyframes in the map and of those retired by the cap

@@ -104,6 +104,23 @@ fn end_to_end_sim3_ape_below_30cm_and_never_lost() {
     let scale = report.alignment.expect("aligned").scale;
     assert!((scale - 1.0).abs() < 0.15, "alignment scale {scale}");
     assert!(system.map().n_keyframes() >= 5 && system.map().n_points() > 500);
+    // A frame that became a keyframe is saved at the keyframe's final pose (ORB-SLAM2
+    // records it against itself before the local BA moves it), not at its tracked one.
+    let mut checked = 0;
+    for kf in system.map().keyframes() {
+        let Some(i) = est.timestamps.iter().position(|&t| t == kf.timestamp) else {
+            continue;
+        };
+        let saved = est.poses[i].0.to_homogeneous();
+        let final_pose = kf.pose.inverse().0.to_homogeneous();
+        assert!(
+            (saved - final_pose).norm() < 1e-9,
+            "keyframe at {}: saved pose differs from the keyframe's",
+            kf.timestamp
+        );
+        checked += 1;
+    }
+    assert!(checked >= 3, "{checked} keyframes among the saved frames");
 }
 
 #[test]
