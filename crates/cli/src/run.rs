@@ -139,7 +139,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     {
         bail!("--realtime {speed}: the replay speed must be a positive number");
     }
-    config.validate()?;
+    config.validate().with_context(|| match &args.config {
+        Some(p) => format!("invalid settings in {} or on the command line", p.display()),
+        None => "invalid settings on the command line".to_string(),
+    })?;
     let camera = read_camera_yaml(&args.dataset.join("camera.yaml"))?.camera;
     let sequence = Sequence::open(&args.dataset)?;
     let tiles = MapTiles::open(&args.dataset)?;

@@ -89,7 +89,16 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     if !args.sequential {
         tracing::info!("threaded mode is not implemented; running sequentially");
     }
-    let mut system = System::new(camera, config)?;
+    let settings = match &args.config {
+        Some(p) => format!("settings {} and the command line", p.display()),
+        None => "default settings".to_string(),
+    };
+    let mut system = System::new(camera, config).with_context(|| {
+        format!(
+            "starting the SLAM (camera {}, {settings})",
+            args.dataset.join("camera.yaml").display()
+        )
+    })?;
     let n = args.max_frames.unwrap_or(usize::MAX).min(sequence.len());
     let start = Instant::now();
     let start_cpu = thread_cpu_ns();

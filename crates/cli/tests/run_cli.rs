@@ -463,8 +463,9 @@ fn a_bad_dataset_is_a_clear_error() {
     assert!(!run.status.success());
     assert!(String::from_utf8_lossy(&run.stderr).contains("fusion_every"));
     // A misspelt setting, top level or nested, is an error naming the file and the key, not
-    // silently the default.
+    // silently the default; so is a value out of range.
     for (text, key) in [
+        ("fusion_every = 0\n", "fusion_every"),
         ("alignment_windw = 20\n", "alignment_windw"),
         (
             "[slam.local_mapping.ba]\nglobal_sigm = 0.5\n",

@@ -147,6 +147,17 @@ fn existing_outputs_are_refused_without_force() {
         assert_eq!(std::fs::read_to_string(existing).unwrap(), "keep me");
         std::fs::remove_file(existing).unwrap();
     }
+    // A value out of range in the settings file is an error naming the file and the field.
+    let config = tmp.path().join("vo-settings.toml");
+    std::fs::write(&config, "[orb]\nn_features = 0\n").unwrap();
+    let o = vo(&["--config", config.to_str().unwrap()]);
+    assert!(!o.status.success());
+    let e = text(&o.stderr);
+    assert!(
+        e.contains("vo-settings.toml") && e.contains("n_features"),
+        "{e}"
+    );
+    assert!(!out.exists());
     std::fs::write(&out, "keep me").unwrap();
     let o = vo(&["--force"]);
     assert!(o.status.success(), "{}", text(&o.stderr));
