@@ -63,6 +63,11 @@ pub struct JointLocConfig {
     /// old map never saw, so relocalisation rarely ends a long loss; 5 s is 5 m at 1 m/s,
     /// half the camera's footprint at 10 m.
     pub new_map_after_lost_s: f64,
+    /// While there is no world pose (tracking lost, a new map not yet geo-referenced), the
+    /// search prior is the last world pose carried forward at the last ground velocity, for
+    /// at most this many seconds (0: the last world pose as it is). A UAV keeps flying: 12 s
+    /// lost at 1 m/s leaves the last pose 12 m behind, more than a tile.
+    pub dead_reckoning_max_s: f64,
     /// Seed of the alignment RANSAC.
     pub seed: u64,
     pub slam: SystemConfig,
@@ -93,6 +98,7 @@ impl Default for JointLocConfig {
             sweep_after_failures: 2,
             sweep_after_failures_aligned: 10,
             new_map_after_lost_s: 5.0,
+            dead_reckoning_max_s: 20.0,
             seed: 0,
             slam: SystemConfig::default(),
             absloc: AbsLocConfig::default(),
@@ -164,6 +170,12 @@ impl JointLocConfig {
                 self.new_map_after_lost_s,
                 true,
                 "must be finite and >= 0 (0: never)",
+            ),
+            (
+                "dead_reckoning_max_s",
+                self.dead_reckoning_max_s,
+                true,
+                "must be finite and >= 0 (0: off)",
             ),
             (
                 "slam.local_mapping.ba.global_sigma",
@@ -245,12 +257,16 @@ mod tests {
     #[test]
     fn invalid_terrain_and_recovery_settings_are_rejected_with_their_field() {
         type Set = fn(&mut JointLocConfig);
-        let cases: [(Set, &str); 5] = [
+        let cases: [(Set, &str); 6] = [
             (|c| c.terrain.gain = 1.5, "terrain.gain"),
             (|c| c.terrain.gain = f64::NAN, "terrain.gain"),
             (|c| c.terrain.tau_m = 0.0, "terrain.tau_m"),
             (|c| c.terrain.max_offset_m = -1.0, "terrain.max_offset_m"),
             (|c| c.new_map_after_lost_s = -1.0, "new_map_after_lost_s"),
+            (
+                |c| c.dead_reckoning_max_s = f64::NAN,
+                "dead_reckoning_max_s",
+            ),
         ];
         for (set, field) in cases {
             let mut c = JointLocConfig::default();

@@ -6,6 +6,7 @@
 //! - [`alignment`]: the robust, confidence-weighted SLAM→world similarity;
 //! - [`system`]: the driver [`JointLoc`], sequential or threaded;
 //! - [`altitude`]: altimeter-aided z of the reported poses;
+//! - [`dead_reckoning`]: the search prior while there is no world pose;
 //! - [`terrain_shift`]: the fixes' common bias, from where the map points sit on the
 //!   elevation model;
 //! - [`final_ba`]: the global bundle adjustment behind the outputs written at the end;
@@ -14,6 +15,7 @@
 pub mod alignment;
 pub mod altitude;
 pub mod config;
+pub mod dead_reckoning;
 pub mod error;
 pub mod faults;
 pub mod final_ba;

@@ -27,6 +27,7 @@ use serde::Serialize;
 use crate::alignment::{self, Correspondence, SlamToWorld};
 use crate::altitude::AltitudeFilter;
 use crate::config::JointLocConfig;
+use crate::dead_reckoning::{self, GroundTrack};
 use crate::error::Result;
 use crate::final_ba::{FinalBaStats, FinalTie, RefinedKeyFrames};
 use crate::ground::ElevationGround;
@@ -164,6 +165,9 @@ pub struct JointLoc {
     altimeter: Vec<(f64, f64)>,
     next_index: usize,
     last_world_pose: Option<CameraToWorld>,
+    /// The recent world positions, to carry the search prior forward while there is no
+    /// world pose.
+    ground_track: GroundTrack,
     /// Time of the first frame of the current map reported in the world frame: the outputs
     /// written at the end start there too.
     first_world_timestamp: Option<f64>,
@@ -255,6 +259,7 @@ impl JointLoc {
             altimeter: Vec::new(),
             next_index: 0,
             last_world_pose: None,
+            ground_track: GroundTrack::default(),
             first_world_timestamp: None,
             lost_since: None,
             earlier_maps: Vec::new(),
@@ -329,7 +334,7 @@ impl JointLoc {
                     pose: r.pose,
                     keyframe: map.last_keyframe().map(|kf| (kf.id, kf.pose.0)),
                 };
-                let prior = self.prior(r.pose);
+                let prior = self.prior(r.pose, timestamp);
                 match &mut self.absolute {
                     Absolute::Inline(loc) => {
                         let outcome = loc.localize(image, alt, &prior)?;
@@ -374,8 +379,10 @@ impl JointLoc {
             }
             _ => None,
         };
-        if world_pose.is_some() {
+        if let Some(p) = world_pose {
             self.last_world_pose = world_pose;
+            self.ground_track
+                .push(timestamp, [p.centre().x, p.centre().y]);
             self.first_world_timestamp.get_or_insert(timestamp);
         }
         self.timing
@@ -520,28 +527,38 @@ impl JointLoc {
 
     /// The search prior from the fused pose: position and heading of the last world pose;
     /// before the alignment, the current SLAM pose through the provisional one-fix similarity
-    /// (after a new map, the last world pose of the old one until then).
+    /// (after a new map, the last world pose of the old one until then). A last world pose
+    /// older than [`dead_reckoning::FRESH_S`] is carried forward at the last ground velocity
+    /// (see [`JointLocConfig::dead_reckoning_max_s`]) and its heading left out.
     /// Every [`JointLocConfig::sweep_after_failures`]-th search of a failing streak (or
     /// [`JointLocConfig::sweep_after_failures_aligned`]-th once geo-referenced) leaves the
     /// heading out, so the localiser sweeps rotations: the predicted heading may be what is
     /// wrong (a wrong fix or alignment), and with it every search would fail.
-    fn prior(&self, slam_pose: Option<CameraToWorld>) -> Prior {
+    fn prior(&self, slam_pose: Option<CameraToWorld>, timestamp: f64) -> Prior {
         // Before the alignment, the provisional one is fresher than a world pose left from a
         // map set aside after a loss.
-        let predicted = match (&self.alignment, &self.provisional, slam_pose) {
-            (None, Some(s), Some(p)) => Some(s.transform_pose(&p)),
-            _ => self.last_world_pose,
+        let (predicted, stale) = match (&self.alignment, &self.provisional, slam_pose) {
+            (None, Some(s), Some(p)) => (Some(s.transform_pose(&p)), false),
+            _ => (self.last_world_pose, true),
+        };
+        let carried = match self.ground_track.last() {
+            Some((t, _)) if stale && timestamp - t > dead_reckoning::FRESH_S => self
+                .ground_track
+                .predict(timestamp, self.config.dead_reckoning_max_s),
+            _ => None,
         };
         let every = if self.alignment.is_some() {
             self.config.sweep_after_failures_aligned
         } else {
             self.config.sweep_after_failures
         };
-        let trust_heading = every != 0
+        // A stale heading is a guess: the UAV may have turned while it was not tracked.
+        let trust_heading = carried.is_none()
+            && every != 0
             && (self.failures_in_a_row == 0 || !self.failures_in_a_row.is_multiple_of(every));
         match predicted {
             Some(p) => Prior {
-                position: Some([p.centre().x, p.centre().y]),
+                position: Some(carried.unwrap_or([p.centre().x, p.centre().y])),
                 heading: trust_heading
                     .then(|| heading_from_rotation(&p.rotation().to_rotation_matrix())),
             },
