@@ -89,11 +89,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     if !args.sequential {
         tracing::info!("threaded mode is not implemented; running sequentially");
     }
-    let settings = match &args.config {
-        Some(p) => format!("settings {} and the command line", p.display()),
-        None => "default settings".to_string(),
-    };
     let mut system = System::new(camera, config).with_context(|| {
+        let settings = match &args.config {
+            Some(p) => format!("settings {} and the command line", p.display()),
+            None => "default settings".to_string(),
+        };
         format!(
             "starting the SLAM (camera {}, {settings})",
             args.dataset.join("camera.yaml").display()

@@ -537,12 +537,13 @@ impl JointLoc {
     fn prior(&self, slam_pose: Option<CameraToWorld>, timestamp: f64) -> Prior {
         // Before the alignment, the provisional one is fresher than a world pose left from a
         // map set aside after a loss.
-        let (predicted, stale) = match (&self.alignment, &self.provisional, slam_pose) {
-            (None, Some(s), Some(p)) => (Some(s.transform_pose(&p)), false),
-            _ => (self.last_world_pose, true),
-        };
+        let (predicted, from_last_world_pose) =
+            match (&self.alignment, &self.provisional, slam_pose) {
+                (None, Some(s), Some(p)) => (Some(s.transform_pose(&p)), false),
+                _ => (self.last_world_pose, true),
+            };
         let carried = match self.ground_track.last() {
-            Some((t, _)) if stale && timestamp - t > dead_reckoning::FRESH_S => self
+            Some((t, _)) if from_last_world_pose && timestamp - t > dead_reckoning::FRESH_S => self
                 .ground_track
                 .predict(timestamp, self.config.dead_reckoning_max_s),
             _ => None,
