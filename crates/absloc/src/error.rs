@@ -64,9 +64,10 @@ pub enum AbslocError {
     /// Geometry failed (other than "no consensus", which is a failed candidate).
     #[error(transparent)]
     Geometry(#[from] jointloc_geometry::GeometryError),
-    /// Reading the map georeference or the camera failed.
+    /// Reading a dataset file (map.toml, the elevation model, camera.yaml, the sequence)
+    /// failed.
     #[error(transparent)]
-    Sim(#[from] jointloc_sim::SimError),
+    Format(#[from] jointloc_formats::FormatError),
 }
 
 /// Result with [`AbslocError`].

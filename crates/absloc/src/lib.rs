@@ -11,22 +11,19 @@
 //! - [`localizer`], [`search`]: the coarse-to-fine search ([`AbsLocalizer`]);
 //! - [`registry`]: matchers by name (`xfeat-lighterglue`, `orb`, ...);
 //! - [`orb`]: ORB behind the same traits (binary descriptors as 0/1 floats);
-//! - [`dataset`], [`ground_truth`], [`sim_terrain`], [`match_bench`]: dataset readers, true
-//!   homographies and the paper's matcher benchmark (Table V protocol).
+//!
+//! The evaluation protocols that need ground truth (true homographies, the matcher benchmark
+//! of Table V) are in `jointloc_bench`, off the flight path.
 
 pub mod cache;
 pub mod candidate;
 pub mod confidence;
-pub mod dataset;
 pub mod error;
-pub mod ground_truth;
 pub mod localizer;
-pub mod match_bench;
 pub mod orb;
 pub mod pipeline;
 pub mod registry;
 pub mod search;
-pub mod sim_terrain;
 pub mod ssim;
 pub mod tiles;
 pub mod warp;

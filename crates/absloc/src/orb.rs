@@ -1,17 +1,17 @@
-//! ORB (the classic path, `jointloc_slam::orb`) behind the [`Detector`]/[`Matcher`] contract.
+//! ORB (the classic path, `jointloc_features::orb`) behind the [`Detector`]/[`Matcher`] contract.
 //!
 //! [`Features`] holds float descriptors, so the 256 BRIEF bits travel as 256 floats of 0 or 1
-//! (bit `8·byte + k` is bit `k` of byte `byte`, the ORB crate's LSB-first packing). That costs
+//! (bit `8·byte + k` is bit `k` of byte `byte`, the ORB module's LSB-first packing). That costs
 //! 32× the memory of packed bits in RAM, but keeps one feature type for every matcher; the
 //! tile cache packs 0/1 descriptors back to bits on disk. The matcher repacks to bytes and
 //! matches by Hamming distance (mutual nearest neighbours, ratio test); its score is
 //! `1 − distance / 256`, a similarity in [0, 1] like the learned matchers' (random pairs of
 //! descriptors sit near 0.5).
 
-use jointloc_features::{Detector, Features, FeaturesError, Matcher, Matches};
-use jointloc_slam::orb::{
+use jointloc_features::orb::{
     Descriptor, KeyPoint, MatcherConfig, OrbConfig, OrbExtractor, OrbFeatures, match_mutual,
 };
+use jointloc_features::{Detector, Features, FeaturesError, Matcher, Matches};
 
 /// Bits per descriptor.
 pub const ORB_BITS: usize = 256;
@@ -25,9 +25,9 @@ pub struct OrbDetector {
 impl OrbDetector {
     /// An ORB detector with `config` (checked).
     pub fn new(config: OrbConfig) -> Result<Self, FeaturesError> {
-        let extractor =
-            OrbExtractor::new(config).map_err(|e| FeaturesError::InvalidInput(e.to_string()))?;
-        Ok(Self { extractor })
+        Ok(Self {
+            extractor: OrbExtractor::new(config)?,
+        })
     }
 
     /// The settings.
@@ -54,10 +54,7 @@ pub fn floats_to_bits(v: &[f32]) -> Descriptor {
 
 impl Detector for OrbDetector {
     fn detect(&self, image: &image::GrayImage) -> jointloc_features::Result<Features> {
-        let orb = self
-            .extractor
-            .extract(image)
-            .map_err(|e| FeaturesError::InvalidInput(e.to_string()))?;
+        let orb = self.extractor.extract(image)?;
         let mut f = Features {
             descriptor_dim: ORB_BITS,
             image_size: image.dimensions(),

@@ -11,9 +11,9 @@ use jointloc_features::engine::EngineConfig;
 use jointloc_features::lightglue::{LightGlue, LightGlueConfig, LightGlueFeatures};
 use jointloc_features::mnn::{MnnConfig, MnnMatcher};
 use jointloc_features::models::{ModelStore, WeightsFile, sha256_file};
+use jointloc_features::orb::{MatcherConfig, OrbConfig};
 use jointloc_features::superpoint::{SuperPoint, SuperPointConfig};
 use jointloc_features::xfeat::{XFeat, XFeatConfig};
-use jointloc_slam::orb::{MatcherConfig, OrbConfig};
 use serde::Serialize;
 
 use crate::error::{AbslocError, Result};

@@ -1,6 +1,6 @@
 //! The satellite map cut into tiles of the UAV image size (paper §III-B1), with the
-//! georeference of DESIGN §3 (world `(x, y) = (u·gsd, −v·gsd)` for map pixel `(u, v)`) and the
-//! neighbourhood queries of the coarse-to-fine search.
+//! georeference of `map.toml` (world `(x, y) = (u·gsd, −v·gsd)` for map pixel `(u, v)`) and
+//! the neighbourhood queries of the coarse-to-fine search.
 //!
 //! Two sources: `map.toml` + its map image (tiles are cut from the image, or read from the
 //! tile folder when the image is absent), or a bare tile folder in the paper's
@@ -11,7 +11,7 @@
 use std::path::{Path, PathBuf};
 
 use image::GrayImage;
-use jointloc_sim::{ElevationModel, MapInfo};
+use jointloc_formats::{ElevationModel, MapInfo};
 
 use crate::error::{AbslocError, Result, read_gray};
 
@@ -310,7 +310,7 @@ impl MapTiles {
     }
 
     /// Terrain height at world `(x, y)` from the map's elevation model; 0 (flat ground at the
-    /// datum, DESIGN §3) when the map has none.
+    /// datum, z = 0 of the world frame) when the map has none.
     pub fn ground_height(&self, x: f64, y: f64) -> f64 {
         self.ground.height_at(x, y)
     }

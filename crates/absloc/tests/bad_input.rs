@@ -11,8 +11,8 @@ use jointloc_absloc::registry::{RegistryOptions, resolve};
 use jointloc_absloc::{
     AbsLocConfig, AbsLocalizer, AbslocError, FailureReason, MapTiles, Outcome, Prior,
 };
+use jointloc_formats::MapInfo;
 use jointloc_geometry::PinholeCamera;
-use jointloc_sim::MapInfo;
 
 fn orb() -> jointloc_absloc::FeaturePipeline {
     resolve("orb", &RegistryOptions::default()).unwrap()
@@ -79,7 +79,7 @@ fn a_broken_elevation_model_is_an_error_naming_it() {
     let d = dir.path();
     map_folder(d);
     let mut info = MapInfo::read(&d.join("map.toml")).unwrap();
-    info.elevation = Some(jointloc_sim::ElevationInfo {
+    info.elevation = Some(jointloc_formats::ElevationInfo {
         image: "elevation.png".into(),
         gsd_m: 0.2,
         width_px: 250,

@@ -6,13 +6,13 @@ use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, bail};
-use jointloc_absloc::dataset::UavDataset;
-use jointloc_absloc::ground_truth::optical_axis_ground_point;
 use jointloc_absloc::registry::{RegistryOptions, resolve};
 use jointloc_absloc::{
     AbsLocConfig, AbsLocalizer, ConfidenceMode, MapTiles, Outcome, Prior, heading_from_rotation,
 };
+use jointloc_bench::ground_truth::optical_axis_ground_point;
 use jointloc_eval::Statistics;
+use jointloc_formats::UavDataset;
 
 #[derive(Debug, clap::Args)]
 pub struct Args {

@@ -4,12 +4,12 @@
 use std::path::PathBuf;
 
 use anyhow::{Context, bail};
-use jointloc_absloc::ground_truth::{GroundTruthSource, TerrainHeights};
-use jointloc_absloc::match_bench::{
+use jointloc_absloc::registry::{MATCHERS, RegistryOptions, resolve};
+use jointloc_bench::ground_truth::{GroundTruthSource, TerrainHeights};
+use jointloc_bench::match_bench::{
     BenchConfig, HomographyFit, MatchReport, THRESHOLDS_PX, pairs_from_dataset, read_pairs_file,
     run_bench, threshold_key,
 };
-use jointloc_absloc::registry::{MATCHERS, RegistryOptions, resolve};
 
 #[derive(Debug, clap::Args)]
 pub struct Args {
@@ -105,11 +105,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             .dataset
             .as_ref()
             .context("--dataset or --pairs-file is required")?;
-        let ds = jointloc_absloc::dataset::UavDataset::open(dir)?;
+        let ds = jointloc_formats::UavDataset::open(dir)?;
         let terrain = if args.flat_ground {
             None
         } else {
-            jointloc_absloc::sim_terrain::regenerate(dir, &ds)
+            jointloc_bench::sim_terrain::regenerate(dir, &ds)
         };
         let (pairs, source) = pairs_from_dataset(
             dir,

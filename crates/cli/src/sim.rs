@@ -1,5 +1,5 @@
 //! `jointloc sim`: generate a simulated Mars dataset (terrain, satellite map + tiles, UAV
-//! images, ground truth, altimeter) in the layout of DESIGN §3.
+//! images, ground truth, altimeter) in the dataset layout of `docs/architecture.md`.
 
 use std::path::PathBuf;
 

@@ -12,17 +12,16 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::{Context, bail};
-use jointloc_sim::camera_yaml::read_camera_yaml;
+use jointloc_features::orb::GrayImageView;
+use jointloc_formats::{Sequence, read_camera_yaml};
 use jointloc_slam::cpu_time::{cpu_ms, thread_cpu_ns};
 use jointloc_slam::map::Map;
-use jointloc_slam::orb::GrayImageView;
-use jointloc_slam::sequence::Sequence;
 use jointloc_slam::system::{System, SystemConfig, median};
 use jointloc_slam::tracking::TrackingState;
 
 #[derive(Debug, clap::Args)]
 pub struct Args {
-    /// Dataset folder (uav/images.txt, uav/altimeter.txt, camera.yaml; see DESIGN §3).
+    /// Dataset folder (uav/images.txt, uav/altimeter.txt, camera.yaml; see docs/architecture.md).
     #[arg(long)]
     dataset: PathBuf,
     /// Output trajectory (TUM, camera-to-world, SLAM frame; metric scale from the altimeter).

@@ -188,31 +188,43 @@ fn bad_input_is_a_clear_error() {
 }
 
 #[test]
-fn nan_altitudes_and_blank_frames_fail_alone() {
+fn missing_altitudes_and_blank_frames_fail_alone() {
     let tmp = tempfile::tempdir().unwrap();
     let d = tmp.path().join("ds");
     copy_dataset(&d);
-    // Frame 1 has no usable altitude, frame 2 is black.
+    let fixes = tmp.path().join("fixes.txt");
+    let absloc = |d: &Path| {
+        jointloc(&[
+            "absloc",
+            "--dataset",
+            s(d),
+            "--matcher",
+            "orb",
+            "--out",
+            s(&fixes),
+            "--no-cache",
+            "--force",
+        ])
+    };
+    // A NaN reading is a malformed dataset: refused before any work, naming the file and line.
     let alt = std::fs::read_to_string(d.join("uav/altimeter.txt")).unwrap();
     let mut lines: Vec<String> = alt.lines().map(String::from).collect();
     let k = lines.iter().position(|l| !l.starts_with('#')).unwrap() + 1;
     let stamp = lines[k].split_whitespace().next().unwrap().to_string();
     lines[k] = format!("{stamp} nan");
     std::fs::write(d.join("uav/altimeter.txt"), lines.join("\n") + "\n").unwrap();
+    let err = stderr_line(&absloc(&d));
+    assert!(
+        err.contains(&format!("altimeter.txt:{}:", k + 1)) && err.contains("not finite"),
+        "{err}"
+    );
+    // Frame 1 has no altimeter reading, frame 2 is black.
+    lines.remove(k);
+    std::fs::write(d.join("uav/altimeter.txt"), lines.join("\n") + "\n").unwrap();
     image::GrayImage::new(500, 500)
         .save(d.join("uav/images/000002.png"))
         .unwrap();
-    let fixes = tmp.path().join("fixes.txt");
-    let out = jointloc(&[
-        "absloc",
-        "--dataset",
-        s(&d),
-        "--matcher",
-        "orb",
-        "--out",
-        s(&fixes),
-        "--no-cache",
-    ]);
+    let out = absloc(&d);
     assert!(
         out.status.success(),
         "{}",

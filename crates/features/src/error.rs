@@ -2,7 +2,8 @@
 
 use std::path::PathBuf;
 
-/// Everything that can go wrong while reading weights, building graphs or running networks.
+/// Everything that can go wrong while reading weights, building graphs, running networks or
+/// extracting ORB features.
 #[derive(Debug, thiserror::Error)]
 pub enum FeaturesError {
     /// A file could not be read or written.
@@ -37,6 +38,25 @@ pub enum FeaturesError {
         value: String,
         reason: &'static str,
     },
+
+    // --- ORB (orb/) ---
+    /// An image has no room for the ORB edge border.
+    #[error("image of {width}x{height} px is too small: {reason}")]
+    ImageTooSmall {
+        width: u32,
+        height: u32,
+        reason: &'static str,
+    },
+    /// An image buffer does not hold width × height pixels.
+    #[error("image buffer of {len} bytes does not match {width}x{height} px")]
+    InvalidImage {
+        width: usize,
+        height: usize,
+        len: usize,
+    },
+    /// Learning the BRIEF test pattern found no usable set of tests.
+    #[error("BRIEF pattern learning: {reason}")]
+    PatternLearning { reason: String },
 
     // --- Model store and `models fetch` (models.rs) ---
     /// No models directory was given and none could be derived from the environment.

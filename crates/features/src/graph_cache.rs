@@ -6,6 +6,7 @@
 //! truncated file fails to load in the engine and is rebuilt.
 
 use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicU64, Ordering};
 
 use sha2::{Digest, Sha256};
 
@@ -43,9 +44,51 @@ pub fn load_or_build(
         source,
     };
     std::fs::create_dir_all(onnx_dir).map_err(io)?;
-    let tmp = path.with_extension(format!("onnx.tmp{}", std::process::id()));
+    // One temporary file per writer: threads of one process (tests run in parallel) may
+    // build the same graph at once, and each renames its own file into place.
+    static WRITERS: AtomicU64 = AtomicU64::new(0);
+    let writer = WRITERS.fetch_add(1, Ordering::Relaxed);
+    let tmp = path.with_extension(format!("onnx.tmp{}-{writer}", std::process::id()));
     std::fs::write(&tmp, &bytes).map_err(io)?;
     std::fs::rename(&tmp, &path).map_err(io)?;
     tracing::info!(graph = %path.display(), "compiled ONNX graph");
     Ok((path, bytes))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn threads_building_the_same_graph_at_once_all_succeed() {
+        let dir = tempfile::tempdir().unwrap();
+        let weights = dir.path().join("w.bin");
+        std::fs::write(&weights, b"weights").unwrap();
+        let onnx = dir.path().join("onnx");
+        // Every thread finishes building at the same moment, then writes.
+        let barrier = std::sync::Barrier::new(8);
+        std::thread::scope(|scope| {
+            let handles: Vec<_> = (0..8)
+                .map(|_| {
+                    let (onnx, weights, barrier) = (&onnx, &weights, &barrier);
+                    scope.spawn(move || {
+                        load_or_build(onnx, "net", "s", weights, || {
+                            barrier.wait();
+                            Ok(vec![1; 1 << 20])
+                        })
+                    })
+                })
+                .collect();
+            for h in handles {
+                let (path, bytes) = h.join().unwrap().unwrap();
+                assert_eq!(bytes.len(), 1 << 20);
+                assert!(path.exists());
+            }
+        });
+        let names: Vec<_> = std::fs::read_dir(&onnx)
+            .unwrap()
+            .map(|e| e.unwrap().file_name())
+            .collect();
+        assert_eq!(names.len(), 1, "temporary files left: {names:?}");
+    }
 }

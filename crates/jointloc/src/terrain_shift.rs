@@ -187,7 +187,7 @@ impl TerrainCorrection {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use jointloc_sim::{ElevationInfo, ElevationModel, Grid};
+    use jointloc_formats::{ElevationInfo, ElevationModel, Grid};
     use rand::{Rng, SeedableRng};
     use rand_chacha::ChaCha8Rng;
     use rand_distr::{Distribution, Normal};

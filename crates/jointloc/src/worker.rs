@@ -7,21 +7,24 @@ use std::sync::mpsc::{Receiver, SyncSender, TryRecvError, TrySendError, sync_cha
 use std::thread::JoinHandle;
 
 use image::GrayImage;
-use jointloc_absloc::{AbsLocalizer, Outcome, Prior};
+use jointloc_absloc::Prior;
 
 use crate::error::{JointLocError, Result};
+use crate::fix_source::{FixRequest, FixSource, Located};
 
 struct Request {
     frame: usize,
+    timestamp: f64,
     image: GrayImage,
     altitude: f64,
     prior: Prior,
 }
 
-/// A finished search: the frame it was for and its outcome.
+/// A finished search: the frame it was for and its outcome (`None`: the source made no
+/// attempt).
 pub(crate) type Finished = (
     usize,
-    std::result::Result<Outcome, jointloc_absloc::AbslocError>,
+    std::result::Result<Option<Located>, jointloc_absloc::AbslocError>,
 );
 
 /// The thread and its two channels.
@@ -41,14 +44,20 @@ impl std::fmt::Debug for AbsoluteWorker {
 }
 
 impl AbsoluteWorker {
-    pub(crate) fn spawn(mut localizer: AbsLocalizer) -> Result<Self> {
+    pub(crate) fn spawn(mut source: Box<dyn FixSource>) -> Result<Self> {
         let (req_tx, req_rx) = sync_channel::<Request>(1);
         let (res_tx, res_rx) = sync_channel::<Finished>(4);
         let handle = std::thread::Builder::new()
             .name("jointloc-absolute".into())
             .spawn(move || {
                 while let Ok(r) = req_rx.recv() {
-                    let out = localizer.localize(&r.image, r.altitude, &r.prior);
+                    let out = source.localize(&FixRequest {
+                        frame: r.frame,
+                        timestamp: r.timestamp,
+                        image: &r.image,
+                        altitude: r.altitude,
+                        prior: &r.prior,
+                    });
                     if res_tx.send((r.frame, out)).is_err() {
                         break;
                     }
@@ -66,13 +75,7 @@ impl AbsoluteWorker {
     }
 
     /// Hands a frame to the thread if it is idle; false (frame skipped) when it is busy.
-    pub(crate) fn try_submit(
-        &mut self,
-        frame: usize,
-        image: &GrayImage,
-        altitude: f64,
-        prior: Prior,
-    ) -> bool {
+    pub(crate) fn try_submit(&mut self, request: &FixRequest<'_>) -> bool {
         if self.busy {
             return false;
         }
@@ -80,10 +83,11 @@ impl AbsoluteWorker {
             return false;
         };
         let request = Request {
-            frame,
-            image: image.clone(),
-            altitude,
-            prior,
+            frame: request.frame,
+            timestamp: request.timestamp,
+            image: request.image.clone(),
+            altitude: request.altitude,
+            prior: *request.prior,
         };
         // At most one request is ever outstanding (`busy`), so the slot is free.
         match tx.try_send(request) {

@@ -361,7 +361,7 @@ pub fn stamp_crater(terrain: &mut Terrain, crater: &Crater) {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::grid::Grid;
+    use jointloc_formats::Grid;
     use rand::SeedableRng;
 
     fn flat(n: usize, cell: f64) -> Terrain {

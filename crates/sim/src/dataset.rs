@@ -1,5 +1,6 @@
 //! Dataset generation: plan (path, map size, terrain extent), terrain, shading, satellite map
-//! and tiles, UAV frames, ground truth and altimeter, written in the layout of DESIGN §3:
+//! and tiles, UAV frames, ground truth and altimeter, written in jointloc's dataset layout
+//! (the files through `jointloc_formats`, which reads them back):
 //!
 //! ```text
 //! <out>/uav/images/000000.png …  uav/images.txt   uav/gt.txt   uav/altimeter.txt
@@ -29,11 +30,14 @@ use rand_distr::{Distribution, Normal};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use crate::camera_yaml::write_camera_yaml;
-use crate::elevation::{simulate_dem, write_png16};
+use jointloc_formats::Grid;
+use jointloc_formats::camera_yaml::write_camera_yaml;
+use jointloc_formats::elevation::write_elevation_png;
+use jointloc_formats::map_toml::{MapInfo, SceneInfo, SunInfo, covered_length, tile_stride};
+use jointloc_formats::sequence::{FrameRecord, write_sequence};
+
+use crate::dem::simulate_dem;
 use crate::error::{Result, SimError};
-use crate::grid::Grid;
-use crate::map_toml::{MapInfo, SceneInfo, covered_length, tile_stride};
 use crate::render::{UavRenderer, validate_camera};
 use crate::satellite::{Difficulty, SatelliteConfig, crop, downsample_mean};
 use crate::sensor::{SensorConfig, expose};
@@ -276,14 +280,18 @@ pub fn plan_dataset(cfg: &SimConfig) -> Result<DatasetPlan> {
         centre.1 - 0.5 * (lo[1] + hi[1]),
     );
     let (uav_sun, satellite_sun) = cfg.suns();
+    let sun = |s: Sun| SunInfo {
+        azimuth_deg: s.azimuth_deg,
+        elevation_deg: s.elevation_deg,
+    };
     map.scene = Some(SceneInfo {
         generator: format!("jointloc-sim {}", env!("CARGO_PKG_VERSION")),
-        terrain: cfg.terrain_kind,
-        difficulty: cfg.difficulty,
+        terrain: cfg.terrain_kind.name().to_string(),
+        difficulty: cfg.difficulty.name().to_string(),
         seed: cfg.seed,
         terrain_cell_m: cfg.terrain.cell_m,
-        uav_sun,
-        satellite_sun,
+        uav_sun: sun(uav_sun),
+        satellite_sun: sun(satellite_sun),
     });
     // Pixel (0, 0) spans [−gsd/2, gsd/2]; its first cell's centre is half a cell inside.
     let half = (factor as f64 - 1.0) / 2.0 * cfg.terrain.cell_m;
@@ -488,7 +496,7 @@ pub fn write_dataset(
             ELEVATION_IMAGE,
             sub_seed(cfg.seed, stream::DEM),
         )?;
-        write_png16(&out_dir.join(&info.image), &dem)?;
+        write_elevation_png(&out_dir.join(&info.image), &dem)?;
         map.elevation = Some(info);
     }
     map.write(&out_dir.join("map.toml"))?;
@@ -587,11 +595,6 @@ pub fn frame_name(i: usize) -> String {
     format!("{i:06}.png")
 }
 
-/// Timestamp of frame `i`, as written in every file.
-pub fn timestamp(i: usize, rate_hz: f64) -> String {
-    format!("{:.6}", i as f64 / rate_hz)
-}
-
 fn write_text_files(
     cfg: &SimConfig,
     plan: &DatasetPlan,
@@ -600,34 +603,28 @@ fn write_text_files(
     uav_dir: &Path,
 ) -> Result<()> {
     let rate = cfg.trajectory.rate_hz;
-    let mut images = String::from("# timestamp filename (relative to this folder)\n");
-    let mut gt = String::from(
-        "# timestamp tx ty tz qx qy qz qw (camera-to-world, world frame of map.toml)\n",
-    );
-    let mut alt =
-        String::from("# timestamp altitude_m (height above the terrain directly below, noisy)\n");
     let mut rng = ChaCha8Rng::seed_from_u64(sub_seed(cfg.seed, stream::ALTIMETER));
     let noise = Normal::new(0.0, cfg.altimeter_sigma_m).map_err(|e| SimError::InvalidConfig {
         field: "altimeter_sigma_m",
         value: cfg.altimeter_sigma_m.to_string(),
         reason: e.to_string(),
     })?;
-    for (i, pose) in poses.iter().enumerate() {
-        let ts = timestamp(i, rate);
-        images += &format!("{ts} images/{}\n", frame_name(i));
-        let (t, q) = pose.to_translation_quaternion();
-        gt += &format!(
-            "{ts} {} {} {} {} {} {} {}\n",
-            t[0], t[1], t[2], q[0], q[1], q[2], q[3]
-        );
-        let truth = t[2] - terrain.height_at(t[0], t[1]);
-        let measured = truth + noise.sample(&mut rng);
-        alt += &format!("{ts} {measured:.4}\n");
-    }
+    let frames: Vec<FrameRecord> = poses
+        .iter()
+        .enumerate()
+        .map(|(i, pose)| {
+            let (t, _) = pose.to_translation_quaternion();
+            let truth = t[2] - terrain.height_at(t[0], t[1]);
+            FrameRecord {
+                timestamp: i as f64 / rate,
+                image: format!("images/{}", frame_name(i)),
+                altitude: Some(truth + noise.sample(&mut rng)),
+                ground_truth: Some(*pose),
+            }
+        })
+        .collect();
     debug_assert_eq!(poses.len(), plan.path.samples.len());
-    write_file(&uav_dir.join("images.txt"), images.as_bytes())?;
-    write_file(&uav_dir.join("gt.txt"), gt.as_bytes())?;
-    write_file(&uav_dir.join("altimeter.txt"), alt.as_bytes())
+    Ok(write_sequence(uav_dir, &frames)?)
 }
 
 fn write_file(path: &Path, bytes: &[u8]) -> Result<()> {

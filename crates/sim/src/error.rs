@@ -21,13 +21,16 @@ pub enum SimError {
     /// An image could not be encoded or written.
     #[error("{path}: {message}")]
     Image { path: PathBuf, message: String },
-    /// A dataset file (camera.yaml, map.toml, …) could not be parsed.
+    /// The configuration file (`sim.toml`) could not be parsed.
     #[error("{path}:{line}: {message}")]
     Parse {
         path: PathBuf,
         line: usize,
         message: String,
     },
+    /// A dataset file (map.toml, camera.yaml, the sequence, …) could not be read or written.
+    #[error(transparent)]
+    Format(#[from] jointloc_formats::FormatError),
     /// The output folder already holds files and overwriting was not allowed.
     #[error("output directory {path} is not empty; refusing to overwrite it")]
     OutputNotEmpty { path: PathBuf },

@@ -1,14 +1,12 @@
 //! Mars terrain simulator and dataset generator (stands in for the paper's Unreal Engine +
-//! AirSim data, DESIGN §4): terrain synthesis, shading, UAV and satellite rendering, dataset
-//! writer in the layout of DESIGN §3.
+//! AirSim data): terrain synthesis, shading, UAV and satellite rendering, and the dataset
+//! writer. The dataset's files (map.toml, elevation model, camera.yaml, the UAV sequence) are
+//! written through `jointloc_formats`, whose readers every other crate uses.
 
-pub mod camera_yaml;
 pub mod craters;
 pub mod dataset;
-pub mod elevation;
+pub mod dem;
 pub mod error;
-pub mod grid;
-pub mod map_toml;
 pub mod noise;
 pub mod render;
 pub mod rocks;
@@ -22,10 +20,10 @@ pub mod trajectory;
 pub use dataset::{
     DatasetPlan, DatasetSummary, SimConfig, Stage, generate_dataset, plan_dataset, write_dataset,
 };
-pub use elevation::{DemConfig, ElevationInfo, ElevationModel};
+pub use dem::DemConfig;
 pub use error::{Result, SimError};
-pub use grid::Grid;
-pub use map_toml::MapInfo;
+// The simulator's own convenience; other crates import these from jointloc_formats.
+pub use jointloc_formats::{ElevationInfo, ElevationModel, Grid, MapInfo};
 pub use satellite::{Difficulty, SatelliteConfig};
 pub use shading::{ShadingConfig, Sun, shade};
 pub use terrain::{Terrain, TerrainConfig, TerrainExtent, TerrainKind, generate_terrain};

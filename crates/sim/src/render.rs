@@ -15,8 +15,8 @@ use nalgebra::{Point2, Point3, Vector3};
 use rayon::prelude::*;
 
 use crate::error::{Result, SimError};
-use crate::grid::Grid;
 use crate::terrain::Terrain;
+use jointloc_formats::Grid;
 
 /// Maximum mip-map over the bilinear patches of a heightfield.
 #[derive(Debug, Clone)]

@@ -338,7 +338,7 @@ pub fn ejecta_blocks(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::grid::Grid;
+    use jointloc_formats::Grid;
     use rand::SeedableRng;
 
     #[test]

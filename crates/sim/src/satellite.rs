@@ -10,10 +10,10 @@
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use crate::elevation::DemConfig;
+use crate::dem::DemConfig;
 use crate::error::{Result, SimError};
-use crate::grid::Grid;
 use crate::sensor::SensorConfig;
+use jointloc_formats::Grid;
 
 /// Preset size of the UAV-to-map gap.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]

@@ -13,7 +13,7 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::error::{Result, SimError};
-use crate::grid::Grid;
+use jointloc_formats::Grid;
 
 /// Parameters of one camera's sensor.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

@@ -9,8 +9,8 @@
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use crate::grid::Grid;
 use crate::terrain::Terrain;
+use jointloc_formats::Grid;
 
 /// Sun position seen from the terrain.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]

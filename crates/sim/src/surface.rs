@@ -327,7 +327,7 @@ pub fn apply_slope_albedo(t: &mut Terrain, model: &SurfaceModel) {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::grid::Grid;
+    use jointloc_formats::Grid;
 
     #[test]
     fn lattice_interpolation_matches_exact_evaluation() {

@@ -16,10 +16,10 @@ use serde::{Deserialize, Serialize};
 
 use crate::craters::{CraterPopulation, stamp_crater};
 use crate::error::{Result, SimError};
-use crate::grid::Grid;
 use crate::noise::derive_seed;
 use crate::rocks::{GolombekSfd, RockField, RockSampler, ejecta_blocks, stamp_rock};
 use crate::surface::{SurfaceModel, apply_slope_albedo};
+use jointloc_formats::Grid;
 
 /// The three terrain kinds of the paper's dataset.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
@@ -139,6 +139,15 @@ pub struct KindDefaults {
 }
 
 impl TerrainKind {
+    /// Lower-case name, as in files and on the command line.
+    pub fn name(self) -> &'static str {
+        match self {
+            TerrainKind::Crater => "crater",
+            TerrainKind::Gravel => "gravel",
+            TerrainKind::Mountain => "mountain",
+        }
+    }
+
     /// Default feature densities; the secondary ones are scaled by `feature_mixing`.
     pub fn defaults(self, feature_mixing: f64) -> KindDefaults {
         let m = feature_mixing.max(0.0);

@@ -1,5 +1,6 @@
 //! Acceptance: the same seed gives byte-identical files (whatever rayon's thread count), a
-//! different seed gives different ones; the layout of DESIGN §3 is complete and consistent.
+//! different seed gives different ones; the dataset layout (uav/ sequence, camera.yaml,
+//! satellite map and tiles, map.toml, sim.toml) is complete and consistent.
 
 mod common;
 
@@ -7,8 +8,9 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 use common::{read_grey, read_pairs, read_tum};
+use jointloc_formats::MapInfo;
+use jointloc_sim::TerrainKind;
 use jointloc_sim::dataset::{SimConfig, Stage, generate_dataset};
-use jointloc_sim::{MapInfo, TerrainKind};
 
 fn small(seed: u64, kind: TerrainKind) -> SimConfig {
     let mut cfg = SimConfig {

@@ -10,11 +10,11 @@ mod common;
 use std::path::Path;
 
 use common::{read_grey, read_pairs, read_tum};
+use jointloc_formats::{ElevationModel, Grid, MapInfo, read_camera_yaml};
 use jointloc_geometry::RadTan;
-use jointloc_sim::camera_yaml::read_camera_yaml;
 use jointloc_sim::dataset::{DatasetPlan, SimConfig, plan_dataset, write_dataset};
 use jointloc_sim::sensor::SensorConfig;
-use jointloc_sim::{Difficulty, ElevationModel, Grid, MapInfo, Sun, Terrain};
+use jointloc_sim::{Difficulty, Sun, Terrain};
 use nalgebra::Point3;
 
 /// Smooth rolling ground (no cast shadows, nearly uniform light over a marker) with a faint

@@ -5,9 +5,8 @@
 
 use std::path::PathBuf;
 
-use jointloc_sim::camera_yaml::read_camera_yaml;
-use jointloc_slam::orb::GrayImageView;
-use jointloc_slam::sequence::Sequence;
+use jointloc_features::orb::GrayImageView;
+use jointloc_formats::{Sequence, read_camera_yaml};
 use jointloc_slam::system::{System, SystemConfig, median};
 use jointloc_slam::tracking::TrackingState;
 

@@ -1,11 +1,11 @@
 //! A tracked frame: its ORB features in undistorted pixels, the map points its keypoints are
 //! matched to, its pose, and the grey-level entropy the keyframe decision uses.
 
+use jointloc_features::orb::{FeatureGrid, GrayImageView, OrbFeatures};
 use jointloc_geometry::{PinholeCamera, WorldToCamera};
 use nalgebra::{Point2, Point3, Vector3};
 
 use crate::map::{KeyFrameId, MapPointId};
-use crate::orb::{FeatureGrid, GrayImageView, OrbFeatures};
 
 /// Side of the cells of a frame's [`FeatureGrid`], pixels (ORB-SLAM2 uses ~10 px cells).
 pub const GRID_CELL_PX: f64 = 10.0;

@@ -2,7 +2,8 @@
 //! adjustment accepts confidence-weighted global-position factors.
 //!
 //! Built in stages (issue #6): ORB features and the bundle adjustment first, then the map,
-//! tracking and local mapping on top of them.
+//! tracking and local mapping on top of them. ORB itself is in `jointloc_features::orb`, shared
+//! with the absolute localisation.
 
 pub mod ba;
 pub mod cpu_time;
@@ -11,9 +12,7 @@ pub mod frame;
 pub mod initializer;
 pub mod local_mapping;
 pub mod map;
-pub mod orb;
 pub mod relocalisation;
-pub mod sequence;
 pub mod system;
 pub mod tracking;
 

@@ -3,6 +3,7 @@
 //! PnP-RANSAC, refined by the pose-only optimisation, and completed by projecting the
 //! candidate's points with a wide, then a narrow window.
 
+use jointloc_features::orb::MatcherConfig;
 use jointloc_geometry::PinholeCamera;
 use jointloc_geometry::pnp::{PnpConfig, solve_pnp_ransac};
 use nalgebra::{Point2, Point3};
@@ -10,7 +11,6 @@ use serde::{Deserialize, Serialize};
 
 use crate::frame::Frame;
 use crate::map::{KeyFrameId, Map, MapPointId};
-use crate::orb::MatcherConfig;
 use crate::tracking::pose_optimization::{PoseOptimizationConfig, optimize_pose};
 use crate::tracking::projection::search_local_points;
 use crate::tracking::reference::{keyframe_matcher, match_keyframe};

@@ -7,6 +7,7 @@ use std::collections::BTreeMap;
 use std::sync::Arc;
 use std::time::Instant;
 
+use jointloc_features::orb::{GrayImageView, OrbConfig, OrbExtractor};
 use jointloc_geometry::trajectory::Trajectory;
 use jointloc_geometry::{CameraToWorld, PinholeCamera, Sim3, WorldToCamera};
 use nalgebra::Isometry3;
@@ -16,8 +17,7 @@ use crate::cpu_time::{cpu_ms, thread_cpu_ns};
 use crate::error::{Result, SlamError};
 use crate::frame::{Frame, image_entropy};
 use crate::local_mapping::{GroundModel, LocalMapper, LocalMappingConfig};
-use crate::map::{KeyFrameId, Map, RetiredKeyFrame};
-use crate::orb::{GrayImageView, OrbConfig, OrbExtractor};
+use crate::map::{GlobalFix, KeyFrameId, Map, RetiredKeyFrame};
 use crate::tracking::{Tracker, TrackingConfig, TrackingState};
 
 /// Settings of the whole relative-localisation system.
@@ -183,9 +183,16 @@ impl System {
         &self.map
     }
 
-    /// Mutable access for the fusion (attaching `global_fix`es to keyframes).
-    pub fn map_mut(&mut self) -> &mut Map {
-        &mut self.map
+    /// The global-position factors of every keyframe in the map (the fusion's fixes tied to
+    /// it, paper §III-C): a keyframe absent from `per_keyframe` gets none; ids not in the
+    /// map (culled or retired since) are ignored.
+    pub fn set_global_fixes(&mut self, mut per_keyframe: BTreeMap<KeyFrameId, Vec<GlobalFix>>) {
+        let ids: Vec<KeyFrameId> = self.map.keyframes().map(|k| k.id).collect();
+        for id in ids {
+            if let Some(kf) = self.map.keyframe_mut(id) {
+                kf.global_fixes = per_keyframe.remove(&id).unwrap_or_default();
+            }
+        }
     }
 
     pub fn state(&self) -> TrackingState {
@@ -240,6 +247,41 @@ impl System {
         self.tracker.force_lost();
     }
 
+    /// The error [`System::process`] would return for a frame of this size, timestamp and
+    /// altitude before touching any state (wrong size, timestamp not finite or not after the
+    /// previous frame's, altitude not finite and positive), or `Ok` when it would take it.
+    pub fn check_frame(
+        &self,
+        width: usize,
+        height: usize,
+        timestamp: f64,
+        altitude: Option<f64>,
+    ) -> Result<()> {
+        let bad = |reason: String| {
+            Err(SlamError::InvalidFrame {
+                index: self.next_index,
+                reason,
+            })
+        };
+        if width != self.camera.width as usize || height != self.camera.height as usize {
+            return bad(format!(
+                "image is {width}x{height} px, the camera {}x{}",
+                self.camera.width, self.camera.height
+            ));
+        }
+        if !timestamp.is_finite() || self.last_timestamp.is_some_and(|t| timestamp <= t) {
+            return bad(format!(
+                "timestamp {timestamp} is not finite or not increasing"
+            ));
+        }
+        if let Some(a) = altitude
+            && !(a.is_finite() && a > 0.0)
+        {
+            return bad(format!("altitude {a} is not a positive finite number"));
+        }
+        Ok(())
+    }
+
     /// Processes the next frame. Errors on an image of the wrong size, a non-finite or
     /// non-increasing timestamp, or a non-finite / non-positive altitude.
     pub fn process(
@@ -249,28 +291,7 @@ impl System {
         altitude: Option<f64>,
     ) -> Result<FrameResult> {
         let index = self.next_index;
-        let bad = |reason: String| SlamError::InvalidFrame { index, reason };
-        if image.width() != self.camera.width as usize
-            || image.height() != self.camera.height as usize
-        {
-            return Err(bad(format!(
-                "image is {}x{} px, the camera {}x{}",
-                image.width(),
-                image.height(),
-                self.camera.width,
-                self.camera.height
-            )));
-        }
-        if !timestamp.is_finite() || self.last_timestamp.is_some_and(|t| timestamp <= t) {
-            return Err(bad(format!(
-                "timestamp {timestamp} is not finite or not increasing"
-            )));
-        }
-        if let Some(a) = altitude
-            && !(a.is_finite() && a > 0.0)
-        {
-            return Err(bad(format!("altitude {a} is not a positive finite number")));
-        }
+        self.check_frame(image.width(), image.height(), timestamp, altitude)?;
         self.next_index += 1;
         self.last_timestamp = Some(timestamp);
         let t0 = Instant::now();

@@ -3,16 +3,17 @@
 //! every motion it lets through is the true sideways one, it never vetoes a motion the
 //! plain initialisation got right, and it settles pairs the homography vote leaves ambiguous.
 
-mod common;
+#[path = "../../features/tests/common/sim_frames.rs"]
+mod sim_frames;
 
-use common::sim_frames::{View, render_views};
+use jointloc_features::orb::{OrbConfig, OrbExtractor};
 use jointloc_geometry::PinholeCamera;
 use jointloc_sim::TerrainKind;
 use jointloc_slam::frame::Frame;
 use jointloc_slam::initializer::{Altitudes, Initialization, InitializerConfig, initialize};
-use jointloc_slam::orb::{OrbConfig, OrbExtractor};
 use jointloc_slam::tracking::initialization::match_for_initialization;
 use nalgebra::Point2;
+use sim_frames::{View, render_views};
 
 /// The views move along world y, which is the camera's x axis; the twin dives along z.
 fn is_true_motion(init: &Initialization) -> bool {

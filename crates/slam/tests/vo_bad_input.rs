@@ -3,10 +3,10 @@
 
 use std::path::Path;
 
+use jointloc_features::orb::GrayImageView;
+use jointloc_formats::{FormatError, Sequence};
 use jointloc_geometry::PinholeCamera;
 use jointloc_slam::SlamError;
-use jointloc_slam::orb::GrayImageView;
-use jointloc_slam::sequence::Sequence;
 use jointloc_slam::system::{System, SystemConfig};
 
 /// A dataset folder with `n` small valid PNG frames and the given altimeter text.
@@ -49,7 +49,7 @@ fn a_valid_sequence_reads_with_altitudes() {
 fn missing_files_are_named() {
     let tmp = tempfile::tempdir().unwrap();
     let err = Sequence::open(tmp.path()).unwrap_err();
-    assert!(matches!(err, SlamError::Io { .. }), "{err}");
+    assert!(matches!(err, FormatError::Io { .. }), "{err}");
     assert!(err.to_string().contains("images.txt"), "{err}");
     write_dataset(tmp.path(), 3, None);
     std::fs::remove_file(tmp.path().join("uav/images/000001.png")).unwrap();
@@ -72,7 +72,7 @@ fn a_corrupt_png_is_a_decode_error() {
     let seq = Sequence::open(tmp.path()).unwrap();
     assert!(seq.load_image(0).is_ok());
     let err = seq.load_image(1).unwrap_err();
-    assert!(matches!(err, SlamError::ImageDecode { .. }), "{err}");
+    assert!(matches!(err, FormatError::Invalid { .. }), "{err}");
     assert!(err.to_string().contains("000001.png"), "{err}");
 }
 
@@ -88,7 +88,7 @@ fn non_finite_or_malformed_altitudes_are_parse_errors_with_the_line() {
         let tmp = tempfile::tempdir().unwrap();
         write_dataset(tmp.path(), 2, Some(text));
         let err = Sequence::open(tmp.path()).unwrap_err();
-        assert!(matches!(err, SlamError::Parse { .. }), "{text:?}: {err}");
+        assert!(matches!(err, FormatError::Parse { .. }), "{text:?}: {err}");
         let msg = err.to_string();
         assert!(
             msg.contains("altimeter.txt") && msg.contains(needle),

@@ -6,12 +6,11 @@ use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
 
 use jointloc_eval::{AlignMode, EvalConfig, evaluate};
+use jointloc_features::orb::GrayImageView;
+use jointloc_formats::{Sequence, read_camera_yaml};
 use jointloc_geometry::trajectory::{Trajectory, TumOptions};
 use jointloc_sim::TerrainKind;
-use jointloc_sim::camera_yaml::read_camera_yaml;
 use jointloc_sim::dataset::{SimConfig, generate_dataset};
-use jointloc_slam::orb::GrayImageView;
-use jointloc_slam::sequence::Sequence;
 use jointloc_slam::system::{FrameResult, System, SystemConfig};
 use jointloc_slam::tracking::TrackingState;
 

@@ -8,11 +8,13 @@ use std::time::Instant;
 use anyhow::{Context, bail};
 
 use super::journal::Journal;
+use super::paths::{DATASETS, PathNames};
 
 /// One finished child run.
 #[derive(Debug, Clone)]
 pub struct Finished {
-    /// The command as a user would type it (`jointloc …`).
+    /// The command as a user would type it (`jointloc …`), paths as the report shows them
+    /// (relative to its folder, see [`PathNames`]).
     pub command: String,
     /// Wall time of the whole process, seconds.
     pub wall_s: f64,
@@ -27,17 +29,24 @@ pub struct Runner {
     logs: PathBuf,
     counter: usize,
     journal: Journal,
+    names: PathNames,
     /// Runs reused from the journal and their recorded wall time, seconds.
     pub reused: (usize, f64),
-    /// Runs of this invocation by command: a row that is the same run as another (the
-    /// ablations' default settings) shares it instead of running it twice.
+    /// Runs of this invocation by their real command line: a row that is the same run as
+    /// another (the ablations' default settings) shares it instead of running it twice.
     done: std::collections::HashMap<String, Finished>,
 }
 
 impl Runner {
     /// Runs log into `logs`; successful runs are recorded in `journal` (see
     /// [`Journal`]), and with `resume` the ones recorded there before are not run again.
-    pub fn new(logs: &Path, journal: &Path, resume: bool) -> anyhow::Result<Self> {
+    /// Commands, logs and failure reasons name paths as `names` does.
+    pub fn new(
+        logs: &Path,
+        journal: &Path,
+        resume: bool,
+        names: PathNames,
+    ) -> anyhow::Result<Self> {
         let exe = std::env::current_exe().context("locating the jointloc executable")?;
         std::fs::create_dir_all(logs).with_context(|| format!("creating {}", logs.display()))?;
         let journal = Journal::open(journal, &exe, resume)?;
@@ -46,6 +55,7 @@ impl Runner {
             logs: logs.to_path_buf(),
             counter: 0,
             journal,
+            names,
             reused: (0, 0.0),
             done: Default::default(),
         })
@@ -56,14 +66,30 @@ impl Runner {
     pub fn run(&mut self, label: &str, args: &[String]) -> anyhow::Result<Finished> {
         self.counter += 1;
         let log = self.logs.join(format!("{:03}-{label}.log", self.counter));
-        let command = format!(
+        // What runs (the journal's key) and what the report shows.
+        let real = format!(
             "jointloc {}",
             args.iter().map(|a| quote(a)).collect::<Vec<_>>().join(" ")
         );
-        if let Some(f) = self.done.get(&command) {
+        let command = format!(
+            "jointloc {}",
+            args.iter()
+                .map(|a| {
+                    let shown = self.names.arg(a);
+                    // The placeholder is for a reader to replace, not quoted for a shell.
+                    if shown.starts_with(DATASETS) {
+                        shown
+                    } else {
+                        quote(&shown)
+                    }
+                })
+                .collect::<Vec<_>>()
+                .join(" ")
+        );
+        if let Some(f) = self.done.get(&real) {
             return Ok(f.clone());
         }
-        if let Some(e) = self.journal.lookup(&command) {
+        if let Some(e) = self.journal.lookup(&real) {
             tracing::info!("reused from {}: {command}", e.date);
             self.reused.0 += 1;
             self.reused.1 += e.wall_s;
@@ -72,7 +98,7 @@ impl Runner {
                 wall_s: e.wall_s,
                 outcome: Ok(()),
             };
-            self.done.insert(command, finished.clone());
+            self.done.insert(real, finished.clone());
             return Ok(finished);
         }
         tracing::info!("{command}");
@@ -81,10 +107,10 @@ impl Runner {
             .args(args)
             .env("RUST_LOG", "warn")
             .output()
-            .with_context(|| format!("starting {command}"))?;
+            .with_context(|| format!("starting {real}"))?;
         let wall_s = start.elapsed().as_secs_f64();
-        let stdout = String::from_utf8_lossy(&output.stdout).into_owned();
-        let stderr = String::from_utf8_lossy(&output.stderr).into_owned();
+        let stdout = self.names.scrub(&String::from_utf8_lossy(&output.stdout));
+        let stderr = self.names.scrub(&String::from_utf8_lossy(&output.stderr));
         std::fs::write(
             &log,
             format!("$ {command}\n{stdout}\n--- stderr ---\n{stderr}"),
@@ -103,14 +129,14 @@ impl Runner {
         };
         if outcome.is_ok() {
             self.journal
-                .record(&command, wall_s, super::report::utc_date())?;
+                .record(&real, wall_s, super::report::utc_date())?;
         }
         let finished = Finished {
             command: command.clone(),
             wall_s,
             outcome,
         };
-        self.done.insert(command, finished.clone());
+        self.done.insert(real, finished.clone());
         Ok(finished)
     }
 

@@ -6,13 +6,16 @@ use std::path::Path;
 
 use anyhow::{Context, bail};
 use jointloc_eval::{AlignMode, EvalConfig, Statistics, evaluate};
+use jointloc_formats::outputs::read_fixes;
 use jointloc_geometry::CameraToWorld;
 use jointloc_geometry::trajectory::Trajectory;
 use nalgebra::{Isometry3, Quaternion, Translation3, UnitQuaternion};
 use serde::Serialize;
 
-/// TUM file whose rows may carry extra columns after the eight TUM ones (the fixes files do);
-/// `#` lines are comments.
+/// TUM file whose rows may carry extra columns after the eight TUM ones (`jointloc absloc
+/// --out` files do); `#` lines are comments. Every estimate the bench evaluates is read so:
+/// `trajectory.tum` (whose frames without a world pose are comment lines),
+/// `trajectory-final.tum`, VO's trajectory and the absolute localiser's fixes.
 pub fn read_tum_prefix(path: &Path) -> anyhow::Result<Trajectory> {
     let text =
         std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
@@ -42,8 +45,9 @@ pub fn read_tum_prefix(path: &Path) -> anyhow::Result<Trajectory> {
     Trajectory::new(stamps, poses).with_context(|| format!("{}: not a trajectory", path.display()))
 }
 
-/// Confidence column (9th) of a fixes file, by timestamp.
-pub fn read_fix_confidences(path: &Path) -> anyhow::Result<Vec<(f64, f64)>> {
+/// Confidence column (9th) of a `jointloc absloc --out` file, by timestamp; lines that do not
+/// parse are left out.
+fn read_fix_confidences(path: &Path) -> anyhow::Result<Vec<(f64, f64)>> {
     let text =
         std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
     let mut out = Vec::new();
@@ -60,6 +64,44 @@ pub fn read_fix_confidences(path: &Path) -> anyhow::Result<Vec<(f64, f64)>> {
         }
     }
     Ok(out)
+}
+
+/// The absolute fixes of a flight as the figures show them.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct FixSeries {
+    /// Map x, y and confidence of each fix (empty when the positions cannot be read).
+    pub xyw: Vec<(f64, f64, f64)>,
+    /// Confidence of each fix, by timestamp.
+    pub confidence: Vec<(f64, f64)>,
+}
+
+/// The fixes of `jointloc run`'s `fixes.txt`, through its reader in `jointloc_formats`.
+pub fn run_fixes(path: &Path) -> anyhow::Result<FixSeries> {
+    let rows = read_fixes(path)?;
+    Ok(FixSeries {
+        xyw: rows
+            .iter()
+            .map(|r| (r.position[0], r.position[1], r.confidence))
+            .collect(),
+        confidence: rows.iter().map(|r| (r.timestamp, r.confidence)).collect(),
+    })
+}
+
+/// The fixes of a `jointloc absloc --out` file, a layout of its own (not `jointloc run`'s
+/// `fixes.txt`): TUM with the fix's orientation, then `confidence tile ssim match_score
+/// inliers`; failed frames are comment lines.
+pub fn absloc_fixes(path: &Path) -> anyhow::Result<FixSeries> {
+    let confidence = read_fix_confidences(path)?;
+    let xyw = match read_tum_prefix(path) {
+        Ok(t) if t.len() == confidence.len() => t
+            .positions()
+            .iter()
+            .zip(&confidence)
+            .map(|(p, &(_, w))| (p.x, p.y, w))
+            .collect(),
+        _ => Vec::new(),
+    };
+    Ok(FixSeries { xyw, confidence })
 }
 
 /// APE (translation) of an estimate file against ground truth.
@@ -202,23 +244,59 @@ mod tests {
     }
 
     #[test]
-    fn fixes_files_read_with_extra_columns_and_comments() {
+    fn run_fixes_read_through_the_formats_reader() {
+        use jointloc_formats::outputs::{FixRow, write_fixes};
         let dir = tempfile::tempdir().unwrap();
         let p = dir.path().join("fixes.txt");
+        let row = |timestamp, x, confidence| FixRow {
+            timestamp,
+            position: [x, 2.0, 3.0],
+            confidence,
+            tile: 5,
+            ssim: 0.9,
+            match_score: 0.9,
+            inliers: 40,
+            used: true,
+            inlier: true,
+            injected: false,
+        };
+        write_fixes(&p, &[row(0.0, 1.0, 0.8), row(0.4, 2.5, 0.5)]).unwrap();
+        let f = run_fixes(&p).unwrap();
+        assert_eq!(f.xyw, vec![(1.0, 2.0, 0.8), (2.5, 2.0, 0.5)]);
+        assert_eq!(f.confidence, vec![(0.0, 0.8), (0.4, 0.5)]);
+        // The same file is a trajectory of positions to the TUM reader.
+        assert_eq!(read_tum_prefix(&p).unwrap().len(), 2);
+        // An absloc line (13 columns) is not a run's fix.
+        std::fs::write(&p, "0.0 1 2 3 0 0 0 1 0.8 5 0.9 0.9 40\n").unwrap();
+        let e = run_fixes(&p).unwrap_err().to_string();
+        assert!(e.contains("fixes.txt:1") && e.contains("16 columns"), "{e}");
+    }
+
+    #[test]
+    fn absloc_fixes_read_with_extra_columns_and_comments() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("absloc.txt");
         std::fs::write(
             &p,
-            "# header\n0.0 1 2 3 0 0 0 1 0.8 5 0.9 0.9 40\n# 0.2 failed\n0.4 2 2 3 0 0 0 1 0.5 6 0.7 0.7 30\n",
+            "0.0 1 2 3 0 0 0 1 0.8 5 0.9 0.9 40\n# 0.2 failed: NoMatch (9 tiles searched)\n\
+             0.4 2 2 3 0 0 0 1 0.5 6 0.7 0.7 30\n",
         )
         .unwrap();
         let t = read_tum_prefix(&p).unwrap();
         assert_eq!(t.len(), 2);
-        assert_eq!(
-            read_fix_confidences(&p).unwrap(),
-            vec![(0.0, 0.8), (0.4, 0.5)]
-        );
+        let f = absloc_fixes(&p).unwrap();
+        assert_eq!(f.xyw, vec![(1.0, 2.0, 0.8), (2.0, 2.0, 0.5)]);
+        assert_eq!(f.confidence, vec![(0.0, 0.8), (0.4, 0.5)]);
         std::fs::write(&p, "0.0 1 2 x 0 0 0 1\n").unwrap();
         let e = read_tum_prefix(&p).unwrap_err().to_string();
-        assert!(e.contains("fixes.txt:1"), "{e}");
+        assert!(e.contains("absloc.txt:1"), "{e}");
+        // A line that does not read is no fix; positions that are no trajectory (time going
+        // back) leave the confidences.
+        assert_eq!(absloc_fixes(&p).unwrap(), FixSeries::default());
+        std::fs::write(&p, "0.4 1 2 3 0 0 0 1 0.8\n0.2 1 2 3 0 0 0 1 0.6\n").unwrap();
+        let f = absloc_fixes(&p).unwrap();
+        assert!(f.xyw.is_empty());
+        assert_eq!(f.confidence, vec![(0.4, 0.8), (0.2, 0.6)]);
     }
 
     #[test]

@@ -11,6 +11,7 @@ use jointloc_geometry::trajectory::Trajectory;
 use serde::Serialize;
 
 use super::metrics::fmt_ms;
+use super::paths::PathNames;
 
 /// One generated dataset.
 #[derive(Debug, Clone)]
@@ -117,13 +118,15 @@ impl Report {
         }
     }
 
-    /// Writes `report.md` and `report.json` into `out`.
-    pub fn write(&self, out: &Path) -> anyhow::Result<()> {
+    /// Writes `report.md` and `report.json` into `out`, every path in them (commands,
+    /// failure reasons) as `names` shows it: relative to `out`.
+    pub fn write(&self, out: &Path, names: &PathNames) -> anyhow::Result<()> {
         let json = out.join("report.json");
-        std::fs::write(&json, serde_json::to_string_pretty(self)? + "\n")
-            .with_context(|| format!("writing {}", json.display()))?;
+        let text = names.scrub(&(serde_json::to_string_pretty(self)? + "\n"));
+        std::fs::write(&json, text).with_context(|| format!("writing {}", json.display()))?;
         let md = out.join("report.md");
-        std::fs::write(&md, self.markdown()).with_context(|| format!("writing {}", md.display()))
+        std::fs::write(&md, names.scrub(&self.markdown()))
+            .with_context(|| format!("writing {}", md.display()))
     }
 
     fn markdown(&self) -> String {
@@ -159,7 +162,9 @@ impl Report {
              what its frame loop sustains (frames over the time spent processing them; the \
              real-time row replays frames at their timestamps, and its waits do not count); of a \
              VO or absolute-only row, frames per second of the process's wall time. A failed run is a \
-             row that says why, as the paper's \"-\". Full data: `report.json`; logs of every run: `logs/`.\n"
+             row that says why, as the paper's \"-\". Full data: `report.json`; logs of every run: `logs/`. \
+             Paths are relative to this report's folder (`runs/`, `datasets/`); `<datasets>` \
+             stands for the folder given with `--datasets` when it is elsewhere.\n"
         );
         self.matching_md(&mut s);
         loc_md(

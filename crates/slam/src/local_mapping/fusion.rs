@@ -5,11 +5,11 @@
 
 use std::collections::BTreeSet;
 
+use jointloc_features::orb::hamming;
 use jointloc_geometry::PinholeCamera;
 use nalgebra::Point2;
 
 use crate::map::{KeyFrameId, Map, MapPointId};
-use crate::orb::hamming;
 use crate::tracking::projection::visibility;
 
 /// Window factor of the projection search (ORB-SLAM2: 3) and the descriptor cap (TH_LOW).

@@ -3,13 +3,13 @@
 //! plausible depth range projects to, then triangulated and checked for parallax, depth,
 //! reprojection error and scale consistency.
 
+use jointloc_features::orb::{hamming, orientation_consistent};
 use jointloc_geometry::triangulation::triangulate_linear;
 use jointloc_geometry::{PinholeCamera, WorldToCamera};
 use nalgebra::{Point2, Point3, Vector2, Vector3};
 use serde::{Deserialize, Serialize};
 
 use crate::map::{KeyFrame, KeyFrameId, Map, MapPointId};
-use crate::orb::{hamming, orientation_consistent};
 
 /// Settings of [`create_new_points`].
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]

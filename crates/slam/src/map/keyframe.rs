@@ -3,11 +3,11 @@
 
 use std::collections::{BTreeMap, BTreeSet};
 
+use jointloc_features::orb::{FeatureGrid, OrbFeatures};
 use jointloc_geometry::WorldToCamera;
 use nalgebra::{Point3, Vector3};
 
 use super::ids::{KeyFrameId, MapPointId};
-use crate::orb::{FeatureGrid, OrbFeatures};
 
 /// An absolute position fix attached to a keyframe by the fusion (paper §III-C): the world
 /// position of a point rigidly attached to the keyframe's camera (its centre, or the ground
@@ -53,8 +53,8 @@ pub struct KeyFrame {
     pub points: Vec<Option<MapPointId>>,
     /// Altimeter reading at this frame, metres above ground, if available.
     pub altitude: Option<f64>,
-    /// Absolute fixes attached by the fusion.
-    pub global_fixes: Vec<GlobalFix>,
+    /// Absolute fixes attached by the fusion ([`crate::system::System::set_global_fixes`]).
+    pub(crate) global_fixes: Vec<GlobalFix>,
     pub(super) covisibility: BTreeMap<KeyFrameId, usize>,
     /// Covisible keyframes by decreasing weight, ties by id.
     pub(super) ordered: Vec<(KeyFrameId, usize)>,
@@ -63,6 +63,11 @@ pub struct KeyFrame {
 }
 
 impl KeyFrame {
+    /// The absolute fixes the fusion attached (global-position factors of the local BA).
+    pub fn global_fixes(&self) -> &[GlobalFix] {
+        &self.global_fixes
+    }
+
     /// A keyframe with no map points and no connections yet.
     pub fn new(
         frame_index: usize,

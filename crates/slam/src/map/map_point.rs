@@ -3,10 +3,10 @@
 
 use std::collections::BTreeMap;
 
+use jointloc_features::orb::Descriptor;
 use nalgebra::Vector3;
 
 use super::ids::{KeyFrameId, MapPointId};
-use crate::orb::Descriptor;
 
 /// A landmark of the map.
 #[derive(Debug, Clone)]

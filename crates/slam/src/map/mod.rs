@@ -10,13 +10,12 @@ mod map_point;
 
 use std::collections::BTreeMap;
 
+use jointloc_features::orb::{Descriptor, hamming};
 use nalgebra::Vector3;
 
 pub use ids::{KeyFrameId, MapPointId};
 pub use keyframe::{GlobalFix, KeyFrame, RetiredKeyFrame};
 pub use map_point::MapPoint;
-
-use crate::orb::{Descriptor, hamming};
 
 /// Covisibility edges need at least this many shared points (ORB-SLAM2: 15).
 pub const COVISIBILITY_THRESHOLD: usize = 15;

@@ -1,8 +1,8 @@
+use jointloc_features::orb::{FeatureGrid, KeyPoint, OrbFeatures};
 use jointloc_geometry::WorldToCamera;
 use nalgebra::{Isometry3, Vector3};
 
 use super::*;
-use crate::orb::{FeatureGrid, KeyPoint, OrbFeatures};
 
 fn features(n: usize, seed: u8) -> OrbFeatures {
     let keypoints: Vec<KeyPoint> = (0..n)

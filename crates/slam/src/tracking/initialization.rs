@@ -3,6 +3,7 @@
 //! `SearchForInitialization`), the two-view reconstruction of [`crate::initializer`], and the
 //! first two keyframes with their points, refined by a bundle adjustment.
 
+use jointloc_features::orb::{Match, MatcherConfig, WindowQuery, search_in_window};
 use jointloc_geometry::{PinholeCamera, WorldToCamera};
 use nalgebra::Point2;
 use serde::{Deserialize, Serialize};
@@ -12,7 +13,6 @@ use crate::error::{Result, SlamError};
 use crate::frame::Frame;
 use crate::initializer::{Altitudes, InitializerConfig, initialize};
 use crate::map::{KeyFrame, KeyFrameId, Map};
-use crate::orb::{Match, MatcherConfig, WindowQuery, search_in_window};
 
 /// Settings of the initialisation stage.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

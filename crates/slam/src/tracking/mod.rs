@@ -9,13 +9,13 @@ pub mod pose_optimization;
 pub mod projection;
 pub mod reference;
 
+use jointloc_features::orb::MatcherConfig;
 use jointloc_geometry::{PinholeCamera, WorldToCamera};
 use nalgebra::Isometry3;
 use serde::{Deserialize, Serialize};
 
 use crate::frame::Frame;
 use crate::map::{KeyFrameId, Map};
-use crate::orb::MatcherConfig;
 use crate::relocalisation::{RelocalisationConfig, relocalise};
 
 pub use initialization::{InitializationConfig, try_initialize};

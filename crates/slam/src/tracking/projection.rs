@@ -2,12 +2,12 @@
 //! predicted pose and matched to keypoints in a window around the projection, at the pyramid
 //! level their distance predicts.
 
+use jointloc_features::orb::{Match, MatcherConfig, WindowQuery, search_in_window};
 use jointloc_geometry::{PinholeCamera, WorldToCamera};
 use nalgebra::{Point2, Point3, Vector3};
 
 use crate::frame::Frame;
 use crate::map::{Map, MapPoint, MapPointId};
-use crate::orb::{MatcherConfig, WindowQuery, search_in_window};
 
 /// Where and how a map point should appear in a camera (ORB-SLAM2's `isInFrustum`).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -150,7 +150,7 @@ pub fn search_last_frame(
 }
 
 /// Writes matches into free keypoints of `frame`; returns how many were written.
-fn assign(frame: &mut Frame, ids: &[MapPointId], matches: &[crate::orb::Match]) -> usize {
+fn assign(frame: &mut Frame, ids: &[MapPointId], matches: &[Match]) -> usize {
     let mut taken: std::collections::BTreeSet<MapPointId> =
         frame.points.iter().flatten().copied().collect();
     let mut n = 0;

@@ -3,9 +3,10 @@
 //! image a brute-force mutual search with a ratio test and the rotation check costs about the
 //! same and needs no vocabulary. Used to track the reference keyframe and to relocalise.
 
+use jointloc_features::orb::{MatcherConfig, OrbFeatures, match_mutual};
+
 use crate::frame::Frame;
 use crate::map::{KeyFrame, Map, MapPointId};
-use crate::orb::{MatcherConfig, OrbFeatures, match_mutual};
 
 /// ORB-SLAM2's matcher for keyframe tracking: distance ≤ 50 (TH_LOW), ratio 0.7, rotation
 /// check.

@@ -1,0 +1,126 @@
+//! The one way to assemble the system: from the camera, the map and the settings, the builder
+//! makes the absolute localiser (the matcher named in the settings, its weights from the
+//! models folder), wraps it in the configured faults, starts the SLAM, and runs the absolute
+//! localisation inline or on its own thread.
+
+use std::path::PathBuf;
+
+use jointloc_absloc::registry::{RegistryOptions, resolve};
+use jointloc_absloc::{AbsLocalizer, MapTiles};
+use jointloc_geometry::PinholeCamera;
+use jointloc_slam::system::System;
+
+use crate::config::JointLocConfig;
+use crate::error::Result;
+use crate::faults::FaultyFixes;
+use crate::fix_source::FixSource;
+use crate::observer::Observer;
+use crate::system::{JointLoc, Mode};
+
+/// Builds a [`JointLoc`]; see [`JointLoc::builder`].
+pub struct JointLocBuilder {
+    camera: PinholeCamera,
+    tiles: MapTiles,
+    config: JointLocConfig,
+    mode: Mode,
+    models_dir: Option<PathBuf>,
+    threads: Option<usize>,
+    source: Option<Box<dyn FixSource>>,
+    observers: Vec<Box<dyn Observer>>,
+}
+
+impl std::fmt::Debug for JointLocBuilder {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("JointLocBuilder")
+            .field("mode", &self.mode)
+            .field("matcher", &self.config.matcher)
+            .field("models_dir", &self.models_dir)
+            .field("observers", &self.observers.len())
+            .finish_non_exhaustive()
+    }
+}
+
+impl JointLoc {
+    /// A builder for the system that localises `camera`'s frames in `tiles`' map with
+    /// `config`; sequential by default.
+    pub fn builder(
+        camera: PinholeCamera,
+        tiles: MapTiles,
+        config: JointLocConfig,
+    ) -> JointLocBuilder {
+        JointLocBuilder {
+            camera,
+            tiles,
+            config,
+            mode: Mode::Sequential,
+            models_dir: None,
+            threads: None,
+            source: None,
+            observers: Vec::new(),
+        }
+    }
+}
+
+impl JointLocBuilder {
+    /// Sequential (deterministic, the absolute localisation inline) or threaded (real time).
+    pub fn mode(mut self, mode: Mode) -> Self {
+        self.mode = mode;
+        self
+    }
+
+    /// Where the networks' weights are (default: `$JOINTLOC_MODELS` or the user cache).
+    pub fn models_dir(mut self, dir: Option<PathBuf>) -> Self {
+        self.models_dir = dir;
+        self
+    }
+
+    /// ONNX Runtime threads per network (default 1).
+    pub fn threads(mut self, threads: usize) -> Self {
+        self.threads = Some(threads);
+        self
+    }
+
+    /// Fixes from `source` instead of the map localiser (the map is then used for its
+    /// elevation model only); the configured faults still apply.
+    pub fn fix_source(mut self, source: Box<dyn FixSource>) -> Self {
+        self.source = Some(source);
+        self
+    }
+
+    /// Adds an observer, called for every frame and fix.
+    pub fn observer(mut self, observer: Box<dyn Observer>) -> Self {
+        self.observers.push(observer);
+        self
+    }
+
+    /// Validates the settings, loads the matcher and starts the system.
+    pub fn build(self) -> Result<JointLoc> {
+        let config = self.config;
+        config.validate()?;
+        let ground = self.tiles.ground();
+        let source: Box<dyn FixSource> = match self.source {
+            Some(source) => source,
+            None => {
+                let options = RegistryOptions {
+                    models_dir: self.models_dir,
+                    threads: self.threads,
+                    max_keypoints: None,
+                };
+                let pipeline = resolve(&config.matcher, &options)?;
+                Box::new(AbsLocalizer::new(
+                    self.tiles,
+                    self.camera,
+                    pipeline,
+                    config.absloc.clone(),
+                )?)
+            }
+        };
+        let source: Box<dyn FixSource> = if config.faults.affects_fixes() {
+            Box::new(FaultyFixes::new(source, config.faults.clone()))
+        } else {
+            source
+        };
+        let slam = System::new(self.camera, config.slam.clone())?;
+        JointLoc::assemble(slam, source, self.mode, ground, self.observers, config)
+    }
+}

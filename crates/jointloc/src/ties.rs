@@ -1,0 +1,200 @@
+//! Fixes tied to keyframes (paper §III-C): each used fix is attached to the keyframe that was
+//! current at its frame, so it follows the keyframe when the local BA moves it; the SLAM→world
+//! similarity is re-fitted from the ties and every keyframe gets its global-position factors.
+
+use std::collections::{BTreeMap, BTreeSet};
+
+use jointloc_slam::map::{GlobalFix, KeyFrameId, Map, MapPointId};
+use nalgebra::Point3;
+
+use crate::alignment::{self, Correspondence, SlamToWorld};
+use crate::system::{JointLoc, Submitted};
+use crate::terrain_shift::estimate_shift;
+
+/// A used fix tied to a keyframe: the camera centre and the point on the optical axis at the
+/// altimeter range, both in the keyframe's camera frame, so they follow the keyframe when the
+/// local BA moves it.
+#[derive(Debug, Clone)]
+pub(crate) struct Tie {
+    pub(crate) record: usize,
+    pub(crate) keyframe: KeyFrameId,
+    pub(crate) centre_in_kf: Point3<f64>,
+    pub(crate) ground_in_kf: Point3<f64>,
+    pub(crate) world_camera: Point3<f64>,
+    pub(crate) world_ground: Point3<f64>,
+    pub(crate) weight: f64,
+    /// Last known SLAM positions (kept when the keyframe is culled).
+    pub(crate) slam_camera: Point3<f64>,
+    pub(crate) slam_ground: Point3<f64>,
+}
+
+impl Tie {
+    /// SLAM positions from the keyframe's current pose (kept when it was culled).
+    pub(crate) fn refresh(&mut self, map: &Map) {
+        if let Some(kf) = map.keyframe(self.keyframe) {
+            let t_wc = kf.pose.0.inverse();
+            self.slam_camera = t_wc.transform_point(&self.centre_in_kf);
+            self.slam_ground = t_wc.transform_point(&self.ground_in_kf);
+        }
+    }
+}
+
+impl JointLoc {
+    /// Ties a fix to the keyframe that was current at its frame; false when it cannot be used
+    /// (low confidence, frame not tracked, or that keyframe culled since).
+    pub(crate) fn tie_fix(&mut self, fix: &jointloc_absloc::Fix, at: &Submitted) -> bool {
+        if fix.confidence < self.config.min_confidence {
+            return false;
+        }
+        let (Some(pose), Some((kf_id, t_cw))) = (at.pose, at.keyframe) else {
+            return false;
+        };
+        if self.slam.map().keyframe(kf_id).is_none() {
+            return false;
+        }
+        let altitude = at.altitude;
+        // SLAM units per metre: the current alignment's inverse scale, else 1 (the SLAM map is
+        // metric from the altimeter at initialisation).
+        let per_metre = self.alignment.as_ref().map_or(1.0, |a| 1.0 / a.sim3.scale);
+        let centre = pose.centre();
+        let ground = pose
+            .0
+            .transform_point(&Point3::new(0.0, 0.0, altitude * per_metre));
+        let [x, y, z] = fix.position;
+        self.ties.push(Tie {
+            record: self.fixes.len(),
+            keyframe: kf_id,
+            centre_in_kf: t_cw.transform_point(&centre),
+            ground_in_kf: t_cw.transform_point(&ground),
+            world_camera: Point3::new(x, y, z),
+            world_ground: Point3::new(x, y, z - altitude),
+            weight: fix.confidence,
+            slam_camera: centre,
+            slam_ground: ground,
+        });
+        true
+    }
+
+    /// Refreshes the tie points from the keyframes' current poses, re-fits the alignment and
+    /// updates every keyframe's global-position factor.
+    pub(crate) fn refit(&mut self) {
+        let map = self.slam.map();
+        for t in &mut self.ties {
+            t.refresh(map);
+        }
+        let first = match self.config.alignment_window {
+            0 => 0,
+            w => self.ties.len().saturating_sub(w),
+        };
+        let fitted = self.fit_ties(&self.ties, first..self.ties.len());
+        let Some(fitted) = fitted else {
+            return;
+        };
+        for r in &mut self.fixes {
+            r.inlier = false;
+        }
+        let s = fitted.sim3;
+        // Global factors per keyframe, one pair per inlier fix tied to it: the fix's ground
+        // point as the point on the tied frame's optical axis (what a map fix measures), and
+        // the camera above it (a nadir view, `nadir_sigma_scale`). The SLAM's tilt is its
+        // weakest direction (a tilt and a sideways shift look alike over flat ground), so the
+        // lever arm from the ground point to the camera must not be taken from it alone.
+        let mut per_kf: BTreeMap<KeyFrameId, Vec<GlobalFix>> = BTreeMap::new();
+        for &i in &fitted.inlier_fixes {
+            let t = &self.ties[i];
+            self.fixes[t.record].inlier = true;
+            let fixes = per_kf.entry(t.keyframe).or_default();
+            fixes.push(GlobalFix {
+                point_in_camera: t.ground_in_kf.coords,
+                position: self.corrected(&t.world_ground).coords,
+                weight: t.weight,
+                sigma_scale: 1.0,
+            });
+            if self.config.nadir_sigma_scale > 0.0 {
+                fixes.push(GlobalFix {
+                    point_in_camera: t.centre_in_kf.coords,
+                    position: self.corrected(&t.world_camera).coords,
+                    weight: t.weight,
+                    sigma_scale: self.config.nadir_sigma_scale,
+                });
+            }
+        }
+        self.slam.set_global_fixes(per_kf);
+        self.slam.set_slam_to_world(Some(s));
+        self.alignment = Some(fitted);
+        self.correct_by_terrain(first);
+    }
+
+    /// Where the window's map points sit on the elevation model through the new alignment:
+    /// the residual of the fixes' common bias, taken into the correction that the next refits
+    /// add to every fix (see [`crate::terrain_shift`]).
+    fn correct_by_terrain(&mut self, first: usize) {
+        let config = &self.config.terrain;
+        let (Some(a), true) = (&self.alignment, config.gain > 0.0) else {
+            return;
+        };
+        if !self.altitude.ground().has_model() {
+            return;
+        }
+        let map = self.slam.map();
+        let first = match config.window {
+            0 => first,
+            w => self.ties.len().saturating_sub(w),
+        };
+        // The window keyframes' points, in id order.
+        let ids: BTreeSet<MapPointId> = self.ties[first..]
+            .iter()
+            .filter_map(|t| map.keyframe(t.keyframe))
+            .flat_map(|kf| kf.points.iter().flatten().copied())
+            .collect();
+        // Points seen from at least 3 keyframes: triangulated, not fresh two-view guesses.
+        let points: Vec<Point3<f64>> = ids
+            .into_iter()
+            .filter_map(|id| map.point(id))
+            .filter(|p| p.n_observations() >= 3)
+            .map(|p| a.sim3.transform_point(&Point3::from(p.position)))
+            .collect();
+        if let Some(estimate) = estimate_shift(&points, self.altitude.ground(), config) {
+            self.terrain.update(&estimate, config);
+            tracing::debug!(
+                shift = ?estimate.shift.as_slice(),
+                points = estimate.points,
+                offset = ?self.terrain.offset.as_slice(),
+                "terrain shift"
+            );
+        }
+    }
+
+    /// The alignment fitted to the ties `range`: the ground point carries the fix's x, y
+    /// exactly (the map point under the image centre); the camera centre adds the altimeter's
+    /// z with a lower weight (its x, y assume a nadir view).
+    pub(crate) fn fit_ties(
+        &self,
+        ties: &[Tie],
+        range: std::ops::Range<usize>,
+    ) -> Option<SlamToWorld> {
+        let mut pairs = Vec::with_capacity(2 * range.len());
+        for i in range {
+            let t = &ties[i];
+            pairs.push(Correspondence {
+                slam: t.slam_ground,
+                world: self.corrected(&t.world_ground),
+                weight: t.weight,
+                fix: i,
+            });
+            pairs.push(Correspondence {
+                slam: t.slam_camera,
+                world: self.corrected(&t.world_camera),
+                weight: t.weight * self.config.nadir_weight,
+                fix: i,
+            });
+        }
+        alignment::fit(
+            &pairs,
+            self.config.inlier_threshold_m,
+            self.config.ransac_iterations,
+            self.config.min_fixes,
+            self.config.seed,
+        )
+    }
+}

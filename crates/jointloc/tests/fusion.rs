@@ -1,0 +1,218 @@
+//! The fusion's state machine on a rendered flight, with fixes from its ground truth: not
+//! geo-referenced → tied → re-fitted → (loss → new map →) end outputs. One scenario a test.
+
+mod common;
+
+use std::sync::{Arc, Mutex, OnceLock};
+
+use common::{TruthFixes, builder, flight, frames, ground_truth, online, rmse};
+use jointloc_formats::outputs::{read_fixes, read_online_tum};
+use jointloc_system::faults::BlindCamera;
+use jointloc_system::{
+    FixRecord, FusedFrame, JointLocBuilder, JointLocConfig, Mode, Observer, OnlineStatus, Outputs,
+};
+
+/// Runs the whole flight; the camera blinded by `config.faults`.
+fn run(builder: JointLocBuilder, config: &JointLocConfig) -> (Vec<FusedFrame>, Outputs) {
+    let mut system = builder.build().unwrap();
+    let blind = BlindCamera::new(config.faults.clone());
+    let fused = frames(flight())
+        .iter()
+        .map(|(image, t, alt)| system.process(&blind.frame(image, *t), *t, *alt).unwrap())
+        .collect();
+    (fused, system.finish().unwrap())
+}
+
+/// The plain sequential run, shared by the tests that only read it.
+fn plain() -> &'static (Vec<FusedFrame>, Outputs) {
+    static RUN: OnceLock<(Vec<FusedFrame>, Outputs)> = OnceLock::new();
+    RUN.get_or_init(|| {
+        let config = JointLocConfig::default();
+        run(
+            builder(flight(), config.clone(), TruthFixes::new(flight(), 0.1, 1)),
+            &config,
+        )
+    })
+}
+
+#[test]
+fn poses_are_flagged_until_three_fixes_tie_the_map_then_follow_the_truth() {
+    let (fused, outputs) = plain();
+    let first_world = fused.iter().position(|f| f.world_pose.is_some()).unwrap();
+    let used_before = outputs
+        .fixes
+        .iter()
+        .filter(|f| f.used && f.frame <= first_world)
+        .count();
+    assert!(
+        used_before >= 3,
+        "geo-referenced at frame {first_world} after {used_before} fixes"
+    );
+    for (f, o) in fused.iter().zip(&outputs.online).take(first_world) {
+        let expected = match f.slam_pose {
+            Some(_) => OnlineStatus::NotGeoReferenced,
+            None => OnlineStatus::NotTracked,
+        };
+        assert_eq!(o.status, expected, "frame {}", f.index);
+    }
+    let world = fused[first_world..]
+        .iter()
+        .filter(|f| f.world_pose.is_some())
+        .count();
+    assert!(
+        world * 10 >= 9 * (fused.len() - first_world),
+        "{world} world poses after {first_world}"
+    );
+    let e = rmse(&ground_truth(flight()), &online(outputs));
+    assert!(e < 0.3, "online rmse {e:.3} m");
+    let s = &outputs.summary;
+    assert_eq!(
+        (s.frames, s.world_poses, s.geo_referenced_from),
+        (fused.len(), outputs.online_world_poses(), Some(first_world))
+    );
+    assert!(s.fixes_inliers * 10 >= 8 * s.fixes_used, "{s:?}");
+    assert_eq!(s.mode, "sequential");
+}
+
+#[test]
+fn the_end_outputs_cover_the_geo_referenced_frames_and_are_written_once() {
+    let (_, outputs) = plain();
+    let gt = ground_truth(flight());
+    let end = outputs.frames.as_ref().unwrap();
+    assert_eq!(end.len(), outputs.online_world_poses());
+    let (e_end, e_online) = (rmse(&gt, end), rmse(&gt, &online(outputs)));
+    assert!(
+        e_end < 0.2 && e_end <= e_online + 0.02,
+        "end {e_end:.3} m, online {e_online:.3} m"
+    );
+    assert!(
+        outputs
+            .summary
+            .final_ba
+            .is_some_and(|b| b.global_factors > 0)
+    );
+    assert!(outputs.keyframes.as_ref().is_some_and(|k| k.len() >= 5));
+
+    let dir = tempfile::tempdir().unwrap();
+    outputs.write(dir.path(), false).unwrap();
+    let back = read_online_tum(&dir.path().join("trajectory.tum")).unwrap();
+    assert_eq!(back.len(), outputs.online.len());
+    for (b, o) in back.iter().zip(&outputs.online) {
+        assert!((b.timestamp - o.timestamp).abs() < 1e-6);
+        match (b.status, o.status) {
+            (OnlineStatus::World(p), OnlineStatus::World(q)) => {
+                assert!((p.centre() - q.centre()).norm() < 1e-5)
+            }
+            (x, y) => assert_eq!(x, y),
+        }
+    }
+    let rows = read_fixes(&dir.path().join("fixes.txt")).unwrap();
+    assert_eq!(rows.len(), outputs.fixes.len());
+    let e = outputs.write(dir.path(), false).unwrap_err().to_string();
+    assert!(
+        e.contains("trajectory.tum") && e.contains("already exists"),
+        "{e}"
+    );
+    outputs.write(dir.path(), true).unwrap();
+}
+
+#[test]
+fn wrong_fixes_are_flagged_and_out_voted() {
+    let mut config = JointLocConfig::default();
+    config.faults.wrong_fix_fraction = 0.25;
+    config.faults.seed = 7;
+    let source = TruthFixes::new(flight(), 0.1, 2);
+    let (_, outputs) = run(builder(flight(), config.clone(), source), &config);
+    let injected: Vec<&FixRecord> = outputs.fixes.iter().filter(|f| f.injected).collect();
+    assert!(injected.len() >= 2, "{} wrong fixes", injected.len());
+    assert!(
+        injected.iter().all(|f| !f.inlier),
+        "a wrong fix in the alignment"
+    );
+    assert_eq!(outputs.summary.fixes_injected_wrong, injected.len());
+    let e = rmse(&ground_truth(flight()), &online(&outputs));
+    assert!(e < 0.3, "online rmse {e:.3} m with wrong fixes");
+}
+
+#[test]
+fn an_outage_is_counted_and_the_slam_carries_the_poses_through_it() {
+    let mut config = JointLocConfig::default();
+    config.faults.outage_start_s = Some(18.0);
+    config.faults.outage_duration_s = 10.0;
+    let source = TruthFixes::new(flight(), 0.1, 3);
+    let (fused, outputs) = run(builder(flight(), config.clone(), source), &config);
+    // Every 10th frame at 5 Hz: one attempt each 2 s.
+    assert_eq!(outputs.summary.skipped_outage, 5, "{:?}", outputs.summary);
+    let during = fused
+        .iter()
+        .filter(|f| (18.0..28.0).contains(&f.timestamp))
+        .filter(|f| f.world_pose.is_some())
+        .count();
+    assert!(during >= 45, "{during} world poses during the outage");
+    assert!(
+        outputs
+            .fixes
+            .iter()
+            .all(|f| !(18.0..28.0).contains(&f.timestamp))
+    );
+}
+
+#[test]
+fn a_long_loss_starts_a_new_map_which_the_fixes_geo_reference_again() {
+    let mut config = JointLocConfig::default();
+    config.faults.blind_start_s = Some(15.0);
+    config.faults.blind_duration_s = 7.0;
+    let source = TruthFixes::new(flight(), 0.1, 4);
+    let (fused, outputs) = run(builder(flight(), config.clone(), source), &config);
+    assert!(outputs.summary.new_maps >= 1, "{:?}", outputs.summary);
+    assert!(outputs.summary.lost > 0);
+    let again = fused
+        .iter()
+        .find(|f| f.timestamp > 22.0 && f.world_pose.is_some())
+        .map(|f| f.timestamp);
+    assert!(
+        again.is_some_and(|t| t < 32.0),
+        "world poses again at {again:?}"
+    );
+    let end = outputs.frames.as_ref().unwrap();
+    assert!(end.timestamps.first().is_some_and(|&t| t < 15.0));
+    assert!(end.timestamps.last().is_some_and(|&t| t > 35.0));
+    let e = rmse(&ground_truth(flight()), end);
+    assert!(e < 0.3, "end rmse {e:.3} m over both maps");
+}
+
+/// Counts what it is shown.
+#[derive(Default)]
+struct Counter {
+    frames: usize,
+    fixes: usize,
+}
+
+struct Counting(Arc<Mutex<Counter>>);
+
+impl Observer for Counting {
+    fn frame(&mut self, _: &FusedFrame) {
+        self.0.lock().unwrap().frames += 1;
+    }
+    fn fix(&mut self, _: &FixRecord) {
+        self.0.lock().unwrap().fixes += 1;
+    }
+}
+
+#[test]
+fn threaded_mode_applies_every_search_by_the_finish_and_observers_see_all() {
+    let config = JointLocConfig::default();
+    let counter = Arc::new(Mutex::new(Counter::default()));
+    let b = builder(flight(), config.clone(), TruthFixes::new(flight(), 0.1, 5))
+        .mode(Mode::Threaded)
+        .observer(Box::new(Counting(counter.clone())));
+    let (fused, outputs) = run(b, &config);
+    let s = &outputs.summary;
+    assert_eq!(s.mode, "threaded");
+    assert_eq!(s.absolute_attempts, s.fixes_found, "{s:?}");
+    assert!(s.world_poses * 10 >= 7 * fused.len(), "{s:?}");
+    let c = counter.lock().unwrap();
+    assert_eq!((c.frames, c.fixes), (fused.len(), outputs.fixes.len()));
+    let e = rmse(&ground_truth(flight()), &online(&outputs));
+    assert!(e < 0.3, "threaded online rmse {e:.3} m");
+}
