@@ -20,6 +20,7 @@ enum DifficultyArg {
     Easy,
     Medium,
     Hard,
+    Mars,
 }
 
 /// Options of `jointloc sim`. Without `--config`, unset options take the defaults shown.
@@ -40,8 +41,9 @@ pub struct Args {
     /// Master seed: the same seed gives byte-identical files [default: 0].
     #[arg(long)]
     seed: Option<u64>,
-    /// UAV-to-map gap: easy 5 cm/px, medium 12.5 cm/px + 45° sun change, hard 25 cm/px + low
-    /// sun [default: easy].
+    /// UAV-to-map gap: easy 5 cm/px, medium 12.5 cm/px + 45° sun change, hard 25 cm/px
+    /// (HiRISE class) + low sun + 1 m stereo DTM, mars = hard on a 2 km map with the suns
+    /// drawn over the Mars envelope [default: easy].
     #[arg(long, value_enum)]
     difficulty: Option<DifficultyArg>,
     /// Start from a full simulator configuration (TOML, as written to <out>/sim.toml); the
@@ -75,9 +77,24 @@ pub struct Args {
     /// Flight height above the ground in metres [default: 10].
     #[arg(long, value_parser = positive)]
     altitude: Option<f64>,
-    /// Altimeter noise σ in metres [default: 0.1].
+    /// Altimeter noise σ at short range in metres; it grows as 1 % of the altitude above
+    /// 10 m [default: 0.1].
     #[arg(long)]
     altimeter_sigma: Option<f64>,
+    /// Side of a square map larger than the flight, metres; the flight is placed in it at a
+    /// seeded position [default: the flight's bounding box plus margin; mars: 2000].
+    #[arg(long, value_parser = positive)]
+    map_size_m: Option<f64>,
+    /// Azimuth difference between the map's sun and the flight's, degrees, 0–180
+    /// [default: the preset's].
+    #[arg(long)]
+    sun_azimuth_change_deg: Option<f64>,
+    /// Elevation of the map's sun, degrees [default: the preset's].
+    #[arg(long)]
+    sun_elevation_deg: Option<f64>,
+    /// Elevation of the flight's sun, degrees [default: drawn from the seed].
+    #[arg(long)]
+    flight_sun_elevation_deg: Option<f64>,
     /// No progress bar.
     #[arg(long)]
     quiet: bool,
@@ -110,6 +127,7 @@ fn config(args: &Args) -> anyhow::Result<SimConfig> {
             DifficultyArg::Easy => Difficulty::Easy,
             DifficultyArg::Medium => Difficulty::Medium,
             DifficultyArg::Hard => Difficulty::Hard,
+            DifficultyArg::Mars => Difficulty::Mars,
         };
     }
     if let Some(seed) = args.seed {
@@ -152,6 +170,18 @@ fn config(args: &Args) -> anyhow::Result<SimConfig> {
     }
     if let Some(cy) = args.cy {
         cam.cy = cy;
+    }
+    if args.map_size_m.is_some() {
+        cfg.map_size_m = args.map_size_m;
+    }
+    if args.sun_azimuth_change_deg.is_some() {
+        cfg.sun_azimuth_change_deg = args.sun_azimuth_change_deg;
+    }
+    if args.sun_elevation_deg.is_some() {
+        cfg.sun_elevation_deg = args.sun_elevation_deg;
+    }
+    if args.flight_sun_elevation_deg.is_some() {
+        cfg.flight_sun_elevation_deg = args.flight_sun_elevation_deg;
     }
     cfg.validate().context("invalid simulator configuration")?;
     Ok(cfg)

@@ -79,6 +79,11 @@ pub struct SceneInfo {
     /// Sun during the UAV flight and when the map was taken.
     pub uav_sun: SunInfo,
     pub satellite_sun: SunInfo,
+    /// In a map larger than the flight, the pixel rectangle `[x, y, width, height]` whose
+    /// terrain has the UAV's detail (the flight is inside it); elsewhere the map was rendered
+    /// from a terrain with one cell per pixel.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub detailed_region_px: Option<[u32; 4]>,
 }
 
 /// Sun position seen from the terrain.
@@ -367,6 +372,7 @@ mod tests {
                 azimuth_deg: 75.0,
                 elevation_deg: 35.0,
             },
+            detailed_region_px: Some([100, 50, 400, 300]),
         });
         let text = info.to_toml_string();
         let back = MapInfo::parse(&text, Path::new("map.toml")).unwrap();

@@ -36,13 +36,16 @@ use jointloc_formats::elevation::write_elevation_png;
 use jointloc_formats::map_toml::{MapInfo, SceneInfo, SunInfo, covered_length, tile_stride};
 use jointloc_formats::sequence::{FrameRecord, write_sequence};
 
-use crate::dem::simulate_dem;
+use crate::dem::{Heights, simulate_dem};
 use crate::error::{Result, SimError};
+use crate::regional::{BLEND_BAND_M, MAX_MAP_SIDE_PX, Patch, composite, pixel_heights};
 use crate::render::{UavRenderer, validate_camera};
 use crate::satellite::{Difficulty, SatelliteConfig, crop, downsample_mean};
 use crate::sensor::{SensorConfig, expose};
 use crate::shading::{ShadingConfig, Sun, shade};
-use crate::terrain::{Terrain, TerrainConfig, TerrainExtent, TerrainKind, generate_terrain};
+use crate::terrain::{
+    FeatureLayout, Terrain, TerrainConfig, TerrainExtent, TerrainKind, generate_terrain_with,
+};
 use crate::trajectory::{PlanarPath, TrajectoryConfig, fly, plan_path};
 
 /// Everything that defines a dataset. Same config (seed included) → byte-identical files.
@@ -61,8 +64,23 @@ pub struct SimConfig {
     pub camera: PinholeCamera,
     /// UAV camera sensor (blur, exposure, noise, gamma).
     pub sensor: SensorConfig,
-    /// σ of the altimeter's Gaussian noise, metres.
+    /// σ of the altimeter's Gaussian noise at short range, metres.
     pub altimeter_sigma_m: f64,
+    /// The altimeter's noise grows with range: σ = max(`altimeter_sigma_m`, this × the
+    /// nominal altitude), a laser altimeter's 10 cm floor (Ingenuity's beyond 5 m) and a
+    /// radar altimeter's ≈ 0.5 % of range at 50–200 m.
+    pub altimeter_range_fraction: f64,
+    /// Side of a square map larger than the flight, metres, with the flight placed in it at
+    /// a seeded position; absent: the map is the flight's bounding box plus the margin (the
+    /// `mars` preset defaults to 2000 m). See [`crate::regional`].
+    pub map_size_m: Option<f64>,
+    /// Azimuth difference between the map's sun and the flight's, degrees (0–180);
+    /// overrides the preset.
+    pub sun_azimuth_change_deg: Option<f64>,
+    /// Elevation of the map's sun, degrees; overrides the preset.
+    pub sun_elevation_deg: Option<f64>,
+    /// Elevation of the flight's sun, degrees; overrides the preset's draw.
+    pub flight_sun_elevation_deg: Option<f64>,
     /// Smallest distance from the flown path to the map edge, metres (raised automatically to
     /// cover the camera footprint).
     pub margin_m: f64,
@@ -86,6 +104,11 @@ impl Default for SimConfig {
             camera: PinholeCamera::ideal(500.0, 500, 500),
             sensor: SensorConfig::default(),
             altimeter_sigma_m: 0.1,
+            altimeter_range_fraction: 0.005,
+            map_size_m: None,
+            sun_azimuth_change_deg: None,
+            sun_elevation_deg: None,
+            flight_sun_elevation_deg: None,
             margin_m: 12.0,
             uav_sun: None,
             satellite: None,
@@ -105,7 +128,15 @@ mod stream {
     pub const SATELLITE_NOISE: u64 = 6;
     pub const FRAME_NOISE: u64 = 7;
     pub const DEM: u64 = 8;
+    pub const MARS_SUN: u64 = 9;
+    pub const PLACEMENT: u64 = 10;
 }
+
+/// Default side of the `mars` preset's map, metres.
+pub const MARS_MAP_SIZE_M: f64 = 2000.0;
+
+/// Highest flight the simulator renders, metres.
+pub const MAX_ALTITUDE_M: f64 = 500.0;
 
 /// File name of the simulated elevation model.
 pub const ELEVATION_IMAGE: &str = "elevation.png";
@@ -151,21 +182,79 @@ impl SimConfig {
             .unwrap_or_else(|| self.difficulty.satellite_config())
     }
 
-    /// Suns of the flight and of the map.
+    /// Suns of the flight and of the map: the preset's (the `mars` preset draws them from
+    /// its ranges), then the explicit overrides.
     pub fn suns(&self) -> (Sun, Sun) {
         let mut rng = ChaCha8Rng::seed_from_u64(sub_seed(self.seed, stream::SUN));
         let drawn = Sun {
             azimuth_deg: rng.random_range(0.0..360.0),
             elevation_deg: rng.random_range(35.0..60.0),
         };
-        let uav = self.uav_sun.unwrap_or(drawn);
+        let mut uav = self.uav_sun.unwrap_or(drawn);
         let sat = self.satellite_config();
         let sign = if rng.random_bool(0.5) { 1.0 } else { -1.0 };
+        let mut change = sat.sun_azimuth_change_deg;
+        let mut elevation = sat.sun_elevation_deg;
+        if self.difficulty == Difficulty::Mars {
+            let mut m = ChaCha8Rng::seed_from_u64(sub_seed(self.seed, stream::MARS_SUN));
+            let (c, e, f) = (
+                m.random_range(30.0..=180.0),
+                m.random_range(35.0..=45.0),
+                m.random_range(15.0..=60.0),
+            );
+            if self.satellite.is_none() {
+                (change, elevation) = (c, e);
+            }
+            if self.uav_sun.is_none() {
+                uav.elevation_deg = f;
+            }
+        }
+        change = self.sun_azimuth_change_deg.unwrap_or(change);
+        elevation = self.sun_elevation_deg.unwrap_or(elevation);
+        uav.elevation_deg = self.flight_sun_elevation_deg.unwrap_or(uav.elevation_deg);
         let satellite = Sun {
-            azimuth_deg: (uav.azimuth_deg + sign * sat.sun_azimuth_change_deg).rem_euclid(360.0),
-            elevation_deg: sat.sun_elevation_deg,
+            azimuth_deg: (uav.azimuth_deg + sign * change).rem_euclid(360.0),
+            elevation_deg: elevation,
         };
         (uav, satellite)
+    }
+
+    /// Side of the map when it is larger than the flight (explicit, or the `mars` preset's).
+    pub fn effective_map_size_m(&self) -> Option<f64> {
+        self.map_size_m
+            .or((self.difficulty == Difficulty::Mars).then_some(MARS_MAP_SIZE_M))
+    }
+
+    /// σ of the altimeter noise at the nominal altitude.
+    pub fn altimeter_noise_m(&self) -> f64 {
+        self.altimeter_sigma_m
+            .max(self.altimeter_range_fraction * self.trajectory.altitude_m)
+    }
+
+    /// The terrain cell: detail for the UAV's ground sampling distance (altitude / focal),
+    /// never finer than `terrain.cell_m`, and a whole fraction of the map's GSD. At 10 m with
+    /// f = 500 px this is `terrain.cell_m` (2.5 cm); at 200 m on a 25 cm map, 25 cm.
+    pub fn terrain_cell_m(&self) -> f64 {
+        let gsd = self.satellite_config().gsd_m;
+        let f = self.camera.fx.max(self.camera.fy);
+        let wanted = self
+            .terrain
+            .cell_m
+            .max(1.25 * self.trajectory.altitude_m / f);
+        let n = ((gsd / wanted) - 1e-9).ceil().max(1.0);
+        if (gsd / self.terrain.cell_m - n).abs() < 1e-6 {
+            self.terrain.cell_m
+        } else {
+            gsd / n
+        }
+    }
+
+    /// The terrain settings in force (the cell from [`Self::terrain_cell_m`]).
+    pub fn effective_terrain(&self) -> TerrainConfig {
+        TerrainConfig {
+            cell_m: self.terrain_cell_m(),
+            ..self.terrain.clone()
+        }
     }
 
     /// Checks every section; errors name the field.
@@ -174,9 +263,11 @@ impl SimConfig {
         validate_camera(&self.camera)?;
         self.sensor.validate("sensor")?;
         self.terrain.validate()?;
-        self.satellite_config().validate(self.terrain.cell_m)?;
+        self.satellite_config().validate(self.terrain_cell_m())?;
+        self.validate_envelope()?;
         for (field, v) in [
             ("altimeter_sigma_m", self.altimeter_sigma_m),
+            ("altimeter_range_fraction", self.altimeter_range_fraction),
             ("margin_m", self.margin_m),
         ] {
             if !(v.is_finite() && v >= 0.0) {
@@ -197,6 +288,62 @@ impl SimConfig {
                 value: format!("{sun:?}"),
                 reason: "needs a finite azimuth and an elevation in (0, 90]".into(),
             });
+        }
+        Ok(())
+    }
+
+    /// The options of the Mars envelope: map size, suns, altitude.
+    fn validate_envelope(&self) -> Result<()> {
+        let bad = |field: &'static str, v: f64, reason: &str| SimError::InvalidConfig {
+            field,
+            value: v.to_string(),
+            reason: reason.into(),
+        };
+        if let Some(s) = self.map_size_m {
+            if !(s.is_finite() && s > 0.0) {
+                return Err(bad("map_size_m", s, "must be a positive length in metres"));
+            }
+            let gsd = self.satellite_config().gsd_m;
+            if s / gsd > MAX_MAP_SIDE_PX as f64 {
+                return Err(bad(
+                    "map_size_m",
+                    s,
+                    &format!("the map would be over {MAX_MAP_SIDE_PX} pixels a side at {gsd} m/px"),
+                ));
+            }
+        }
+        if let Some(a) = self.sun_azimuth_change_deg
+            && !(0.0..=180.0).contains(&a)
+        {
+            return Err(bad(
+                "sun_azimuth_change_deg",
+                a,
+                "must be in [0, 180] degrees",
+            ));
+        }
+        for (field, e) in [
+            ("sun_elevation_deg", self.sun_elevation_deg),
+            ("flight_sun_elevation_deg", self.flight_sun_elevation_deg),
+        ] {
+            if let Some(e) = e
+                && !(e > 0.0 && e <= 90.0)
+            {
+                return Err(bad(field, e, "must be in (0, 90] degrees"));
+            }
+        }
+        if self.altimeter_range_fraction > 0.5 {
+            return Err(bad(
+                "altimeter_range_fraction",
+                self.altimeter_range_fraction,
+                "must be ≤ 0.5",
+            ));
+        }
+        if self.trajectory.altitude_m > MAX_ALTITUDE_M {
+            return Err(bad(
+                "trajectory.altitude_m",
+                self.trajectory.altitude_m,
+                &format!("must be ≤ {MAX_ALTITUDE_M} m"),
+            ));
         }
         Ok(())
     }
@@ -231,10 +378,16 @@ pub struct DatasetPlan {
     pub path: PlanarPath,
     /// Georeference of the map (scene info included).
     pub map: MapInfo,
-    /// The terrain grid: cell borders coincide with map pixel borders.
+    /// The (detailed) terrain grid: cell borders coincide with map pixel borders.
     pub extent: TerrainExtent,
     /// Terrain cells per map pixel along each axis.
     pub cells_per_pixel: usize,
+    /// The terrain settings in force (the cell adapted to the altitude).
+    pub terrain: TerrainConfig,
+    /// How the terrain draws its craters and rocks.
+    pub layout: FeatureLayout,
+    /// Where the detailed terrain lies in a map larger than the flight.
+    pub patch: Option<Patch>,
     pub uav_sun: Sun,
     pub satellite_sun: Sun,
 }
@@ -252,12 +405,14 @@ impl DatasetPlan {
     }
 }
 
-/// Plans the path, sizes the map to the path's bounding box plus margin (rounded up to whole
-/// tile strides) and lays the terrain grid under the map.
+/// Plans the path, sizes the map and lays the terrain grid under the map: the map is the
+/// path's bounding box plus margin (rounded up to whole tile strides), or a square of
+/// `map_size_m` with the path placed at a seeded position and a detailed patch under it.
 pub fn plan_dataset(cfg: &SimConfig) -> Result<DatasetPlan> {
     cfg.validate()?;
     let sat = cfg.satellite_config();
-    let factor = sat.validate(cfg.terrain.cell_m)?;
+    let terrain = cfg.effective_terrain();
+    let factor = sat.validate(terrain.cell_m)?;
     let mut path = plan_path(&cfg.trajectory, sub_seed(cfg.seed, stream::PATH))?;
     let (lo, hi) = path.bbox();
     let margin = cfg.effective_margin_m();
@@ -266,14 +421,51 @@ pub fn plan_dataset(cfg: &SimConfig) -> Result<DatasetPlan> {
         tile_stride(tw, sat.tile_overlap),
         tile_stride(th, sat.tile_overlap),
     );
-    let need = |span: f64| ((span + 2.0 * margin) / sat.gsd_m).ceil() as u32;
-    let width_px = covered_length(need(hi[0] - lo[0]), tw, sx);
-    let height_px = covered_length(need(hi[1] - lo[1]), th, sy);
-    let mut map = MapInfo::new(sat.gsd_m, width_px, height_px, tw, th, sat.tile_overlap)?;
-    // Centre the path in the map.
+    let need = |span: f64, extra: f64| ((span + 2.0 * (margin + extra)) / sat.gsd_m).ceil() as u32;
+    let (map_w, map_h, patch) = match cfg.effective_map_size_m() {
+        None => {
+            let w = covered_length(need(hi[0] - lo[0], 0.0), tw, sx);
+            let h = covered_length(need(hi[1] - lo[1], 0.0), th, sy);
+            (w, h, None)
+        }
+        Some(size_m) => {
+            let side = (size_m / sat.gsd_m).ceil() as u32;
+            let (w, h) = (covered_length(side, tw, sx), covered_length(side, th, sy));
+            let (pw, ph) = (
+                need(hi[0] - lo[0], BLEND_BAND_M),
+                need(hi[1] - lo[1], BLEND_BAND_M),
+            );
+            if pw > w || ph > h {
+                return Err(SimError::InvalidConfig {
+                    field: "map_size_m",
+                    value: size_m.to_string(),
+                    reason: format!(
+                        "the map is smaller than the flight: its path, the camera footprint and \
+                         a {BLEND_BAND_M} m blend band need {:.0} m × {:.0} m",
+                        pw as f64 * sat.gsd_m,
+                        ph as f64 * sat.gsd_m
+                    ),
+                });
+            }
+            let mut rng = ChaCha8Rng::seed_from_u64(sub_seed(cfg.seed, stream::PLACEMENT));
+            let patch = Patch {
+                x_px: rng.random_range(0..=w - pw),
+                y_px: rng.random_range(0..=h - ph),
+                width_px: pw,
+                height_px: ph,
+                band_px: (BLEND_BAND_M / sat.gsd_m).round() as u32,
+            };
+            (w, h, Some(patch))
+        }
+    };
+    let mut map = MapInfo::new(sat.gsd_m, map_w, map_h, tw, th, sat.tile_overlap)?;
+    // Centre the path in the detailed area (the whole map, or the patch).
+    let (px, py, pw, ph) = patch.map_or((0, 0, map_w, map_h), |p| {
+        (p.x_px, p.y_px, p.width_px, p.height_px)
+    });
     let centre = map.pixel_to_world(
-        (width_px as f64 - 1.0) / 2.0,
-        (height_px as f64 - 1.0) / 2.0,
+        px as f64 + (pw as f64 - 1.0) / 2.0,
+        py as f64 + (ph as f64 - 1.0) / 2.0,
     );
     path.translate(
         centre.0 - 0.5 * (lo[0] + hi[0]),
@@ -289,23 +481,33 @@ pub fn plan_dataset(cfg: &SimConfig) -> Result<DatasetPlan> {
         terrain: cfg.terrain_kind.name().to_string(),
         difficulty: cfg.difficulty.name().to_string(),
         seed: cfg.seed,
-        terrain_cell_m: cfg.terrain.cell_m,
+        terrain_cell_m: terrain.cell_m,
         uav_sun: sun(uav_sun),
         satellite_sun: sun(satellite_sun),
+        detailed_region_px: patch.map(|p| [p.x_px, p.y_px, p.width_px, p.height_px]),
     });
-    // Pixel (0, 0) spans [−gsd/2, gsd/2]; its first cell's centre is half a cell inside.
-    let half = (factor as f64 - 1.0) / 2.0 * cfg.terrain.cell_m;
+    // Pixel (px, py) spans gsd around its centre; its first cell's centre is half a cell inside.
+    let half = (factor as f64 - 1.0) / 2.0 * terrain.cell_m;
+    let (x0, y0) = map.pixel_to_world(px as f64, py as f64);
     let extent = TerrainExtent {
-        origin_x: -half,
-        origin_y: half,
-        width_cells: width_px as usize * factor,
-        height_cells: height_px as usize * factor,
+        origin_x: x0 - half,
+        origin_y: y0 + half,
+        width_cells: pw as usize * factor,
+        height_cells: ph as usize * factor,
+    };
+    let layout = if patch.is_some() {
+        FeatureLayout::world_for_cell(terrain.cell_m)
+    } else {
+        FeatureLayout::Extent
     };
     Ok(DatasetPlan {
         path,
         map,
         extent,
         cells_per_pixel: factor,
+        terrain,
+        layout,
+        patch,
         uav_sun,
         satellite_sun,
     })
@@ -419,11 +621,12 @@ pub fn generate_dataset(
     let plan = plan_dataset(cfg)?;
     let start = Instant::now();
     progress(Stage::Terrain, 0, 1);
-    let terrain = generate_terrain(
+    let terrain = generate_terrain_with(
         cfg.terrain_kind,
         &plan.extent,
-        &cfg.terrain,
+        &plan.terrain,
         sub_seed(cfg.seed, stream::TERRAIN),
+        plan.layout,
     )?;
     progress(Stage::Terrain, 1, 1);
     let terrain_s = start.elapsed().as_secs_f64();
@@ -464,17 +667,16 @@ pub fn write_dataset(
     progress(Stage::Satellite, 0, 1);
     let sat = cfg.satellite_config();
     let tiles = plan.map.tile_list();
+    let (radiance, heights) = map_radiance_and_heights(cfg, plan, terrain)?;
     {
-        let radiance = shade(terrain, &plan.satellite_sun, &cfg.shading);
-        let map = downsample_mean(&radiance, plan.cells_per_pixel)?;
-        drop(radiance);
-        let exposure = sat.sensor.exposure_for(&map.data);
+        let exposure = sat.sensor.exposure_for(&radiance.data);
         let image = expose(
-            &map,
+            &radiance,
             &sat.sensor,
             exposure,
             sub_seed(cfg.seed, stream::SATELLITE_NOISE),
         );
+        drop(radiance);
         write_png(&out_dir.join(&plan.map.image), &image)?;
         tiles.par_iter().try_for_each(|tile| {
             let window = crop(
@@ -489,13 +691,29 @@ pub fn write_dataset(
     }
     let mut map = plan.map.clone();
     if sat.dem.post_px > 0 {
-        let (info, dem) = simulate_dem(
-            terrain,
-            sat.dem.post_px as usize * plan.cells_per_pixel,
-            sat.dem.sigma_m,
-            ELEVATION_IMAGE,
-            sub_seed(cfg.seed, stream::DEM),
-        )?;
+        let dem_seed = sub_seed(cfg.seed, stream::DEM);
+        let (info, dem) = match &heights {
+            // The whole map on its pixel grid (coarse terrain, detailed patch blended in).
+            Some(h) => simulate_dem(
+                Heights {
+                    grid: h,
+                    cell_m: plan.map.gsd_m,
+                    origin_x: 0.0,
+                    origin_y: 0.0,
+                },
+                sat.dem.post_px as usize,
+                &sat.dem,
+                ELEVATION_IMAGE,
+                dem_seed,
+            )?,
+            None => simulate_dem(
+                terrain.into(),
+                sat.dem.post_px as usize * plan.cells_per_pixel,
+                &sat.dem,
+                ELEVATION_IMAGE,
+                dem_seed,
+            )?,
+        };
         write_elevation_png(&out_dir.join(&info.image), &dem)?;
         map.elevation = Some(info);
     }
@@ -565,6 +783,56 @@ pub fn write_dataset(
     })
 }
 
+/// The map's radiance under the map's sun, on its pixel grid; for a map larger than the
+/// flight also its heights (coarse terrain over the map, the detailed patch blended in).
+fn map_radiance_and_heights(
+    cfg: &SimConfig,
+    plan: &DatasetPlan,
+    terrain: &Terrain,
+) -> Result<(Grid<f32>, Option<Grid<f32>>)> {
+    let detail = {
+        let radiance = shade(terrain, &plan.satellite_sun, &cfg.shading);
+        downsample_mean(&radiance, plan.cells_per_pixel)?
+    };
+    let Some(patch) = plan.patch else {
+        return Ok((detail, None));
+    };
+    let gsd = plan.map.gsd_m;
+    let coarse_cfg = TerrainConfig {
+        cell_m: gsd,
+        ..plan.terrain.clone()
+    };
+    let extent = TerrainExtent {
+        origin_x: 0.0,
+        origin_y: 0.0,
+        width_cells: plan.map.width_px as usize,
+        height_cells: plan.map.height_px as usize,
+    };
+    let t = Instant::now();
+    let coarse = generate_terrain_with(
+        cfg.terrain_kind,
+        &extent,
+        &coarse_cfg,
+        sub_seed(cfg.seed, stream::TERRAIN),
+        FeatureLayout::world_for_cell(gsd),
+    )?;
+    tracing::info!(
+        cells = extent.width_cells * extent.height_cells,
+        seconds = t.elapsed().as_secs_f64(),
+        "coarse terrain of the whole map synthesised"
+    );
+    let mut radiance = shade(&coarse, &plan.satellite_sun, &cfg.shading);
+    composite(&mut radiance, &detail, &patch)?;
+    drop(detail);
+    let mut heights = coarse.height;
+    composite(
+        &mut heights,
+        &pixel_heights(terrain, plan.cells_per_pixel)?,
+        &patch,
+    )?;
+    Ok((radiance, Some(heights)))
+}
+
 fn check_terrain(plan: &DatasetPlan, terrain: &Terrain) -> Result<()> {
     let e = &plan.extent;
     let same = terrain.height.width == e.width_cells
@@ -604,9 +872,10 @@ fn write_text_files(
 ) -> Result<()> {
     let rate = cfg.trajectory.rate_hz;
     let mut rng = ChaCha8Rng::seed_from_u64(sub_seed(cfg.seed, stream::ALTIMETER));
-    let noise = Normal::new(0.0, cfg.altimeter_sigma_m).map_err(|e| SimError::InvalidConfig {
+    let sigma = cfg.altimeter_noise_m();
+    let noise = Normal::new(0.0, sigma).map_err(|e| SimError::InvalidConfig {
         field: "altimeter_sigma_m",
-        value: cfg.altimeter_sigma_m.to_string(),
+        value: sigma.to_string(),
         reason: e.to_string(),
     })?;
     let frames: Vec<FrameRecord> = poses
@@ -705,6 +974,191 @@ mod tests {
                 assert!((diff - d.satellite_config().sun_azimuth_change_deg).abs() < 1e-9);
                 assert!((35.0..60.0).contains(&uav.elevation_deg));
             }
+        }
+    }
+
+    #[test]
+    fn a_larger_map_holds_the_flight_at_a_seeded_place() {
+        let mut places = Vec::new();
+        for seed in 0..3 {
+            let cfg = SimConfig {
+                seed,
+                map_size_m: Some(200.0),
+                ..Default::default()
+            };
+            let plan = plan_dataset(&cfg).unwrap();
+            let map = &plan.map;
+            assert_eq!((map.width_px, map.height_px), (4000, 4000));
+            let p = plan.patch.expect("a patch");
+            assert!(p.x_px + p.width_px <= map.width_px && p.y_px + p.height_px <= map.height_px);
+            // The path keeps the margin and the blend band from the patch edge.
+            let keep = cfg.effective_margin_m() + BLEND_BAND_M - map.gsd_m;
+            let (x0, y0) = map.pixel_to_world(p.x_px as f64, p.y_px as f64);
+            let (x1, y1) = map.pixel_to_world(
+                (p.x_px + p.width_px) as f64 - 1.0,
+                (p.y_px + p.height_px) as f64 - 1.0,
+            );
+            for s in &plan.path.samples {
+                assert!(s.x >= x0 + keep && s.x <= x1 - keep, "x {}", s.x);
+                assert!(s.y <= y0 - keep && s.y >= y1 + keep, "y {}", s.y);
+            }
+            assert_eq!(
+                plan.extent.width_cells,
+                p.width_px as usize * plan.cells_per_pixel
+            );
+            assert!(matches!(plan.layout, FeatureLayout::World { .. }));
+            let scene = map.scene.as_ref().unwrap();
+            assert_eq!(
+                scene.detailed_region_px,
+                Some([p.x_px, p.y_px, p.width_px, p.height_px])
+            );
+            places.push((p.x_px, p.y_px));
+        }
+        places.dedup();
+        assert_eq!(places.len(), 3, "the place follows the seed");
+    }
+
+    #[test]
+    fn a_map_smaller_than_the_flight_is_refused_with_the_size_it_needs() {
+        let cfg = SimConfig {
+            map_size_m: Some(60.0),
+            ..Default::default()
+        };
+        let e = plan_dataset(&cfg).unwrap_err().to_string();
+        assert!(
+            e.contains("map_size_m") && e.contains("smaller than the flight"),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn envelope_options_out_of_range_are_refused_naming_the_field() {
+        let base = SimConfig::default();
+        let cases: Vec<(SimConfig, &str)> = vec![
+            (
+                SimConfig {
+                    map_size_m: Some(-5.0),
+                    ..base.clone()
+                },
+                "map_size_m",
+            ),
+            (
+                SimConfig {
+                    map_size_m: Some(f64::NAN),
+                    ..base.clone()
+                },
+                "map_size_m",
+            ),
+            (
+                SimConfig {
+                    map_size_m: Some(1.0e6),
+                    ..base.clone()
+                },
+                "map_size_m",
+            ),
+            (
+                SimConfig {
+                    sun_azimuth_change_deg: Some(181.0),
+                    ..base.clone()
+                },
+                "sun_azimuth_change_deg",
+            ),
+            (
+                SimConfig {
+                    sun_azimuth_change_deg: Some(-1.0),
+                    ..base.clone()
+                },
+                "sun_azimuth_change_deg",
+            ),
+            (
+                SimConfig {
+                    sun_elevation_deg: Some(0.0),
+                    ..base.clone()
+                },
+                "sun_elevation_deg",
+            ),
+            (
+                SimConfig {
+                    flight_sun_elevation_deg: Some(95.0),
+                    ..base.clone()
+                },
+                "flight_sun_elevation_deg",
+            ),
+            (
+                SimConfig {
+                    altimeter_range_fraction: -0.1,
+                    ..base.clone()
+                },
+                "altimeter_range_fraction",
+            ),
+        ];
+        for (cfg, field) in cases {
+            let e = cfg.validate().unwrap_err().to_string();
+            assert!(e.contains(field), "{field}: {e}");
+        }
+        let mut high = base.clone();
+        high.trajectory.altitude_m = 800.0;
+        assert!(
+            high.validate()
+                .unwrap_err()
+                .to_string()
+                .contains("altitude_m")
+        );
+    }
+
+    #[test]
+    fn the_mars_preset_draws_its_suns_and_obeys_overrides() {
+        for seed in 0..20 {
+            let cfg = SimConfig {
+                seed,
+                difficulty: Difficulty::Mars,
+                ..Default::default()
+            };
+            let (uav, sat) = cfg.suns();
+            let change = (sat.azimuth_deg - uav.azimuth_deg).rem_euclid(360.0);
+            let change = change.min(360.0 - change);
+            assert!((30.0 - 1e-9..=180.0 + 1e-9).contains(&change), "{change}");
+            assert!((35.0..=45.0).contains(&sat.elevation_deg));
+            assert!((15.0..=60.0).contains(&uav.elevation_deg));
+            assert_eq!(cfg.effective_map_size_m(), Some(MARS_MAP_SIZE_M));
+            let fixed = SimConfig {
+                sun_azimuth_change_deg: Some(180.0),
+                sun_elevation_deg: Some(40.0),
+                flight_sun_elevation_deg: Some(20.0),
+                ..cfg
+            };
+            let (uav, sat) = fixed.suns();
+            let change = (sat.azimuth_deg - uav.azimuth_deg).rem_euclid(360.0);
+            assert!((change - 180.0).abs() < 1e-9);
+            assert_eq!((sat.elevation_deg, uav.elevation_deg), (40.0, 20.0));
+        }
+    }
+
+    #[test]
+    fn terrain_detail_and_altimeter_noise_follow_the_altitude() {
+        let at = |difficulty, altitude_m| {
+            let mut cfg = SimConfig {
+                difficulty,
+                ..Default::default()
+            };
+            cfg.trajectory.altitude_m = altitude_m;
+            cfg
+        };
+        // At 10 m every preset keeps the 2.5 cm cell and the 10 cm altimeter.
+        for d in Difficulty::ALL {
+            assert_eq!(at(d, 10.0).terrain_cell_m(), 0.025);
+            assert_eq!(at(d, 10.0).altimeter_noise_m(), 0.1);
+        }
+        assert!((at(Difficulty::Hard, 200.0).terrain_cell_m() - 0.25).abs() < 1e-12);
+        assert!((at(Difficulty::Hard, 50.0).terrain_cell_m() - 0.125).abs() < 1e-12);
+        assert!((at(Difficulty::Easy, 100.0).terrain_cell_m() - 0.05).abs() < 1e-12);
+        assert!((at(Difficulty::Hard, 200.0).altimeter_noise_m() - 1.0).abs() < 1e-12);
+        for a in [10.0, 25.0, 50.0, 100.0, 200.0] {
+            let cfg = at(Difficulty::Hard, a);
+            let gsd = cfg.satellite_config().gsd_m;
+            let n = gsd / cfg.terrain_cell_m();
+            assert!((n - n.round()).abs() < 1e-9, "{a} m: {n}");
+            plan_dataset(&cfg).unwrap();
         }
     }
 

@@ -8,6 +8,7 @@ pub mod dataset;
 pub mod dem;
 pub mod error;
 pub mod noise;
+pub mod regional;
 pub mod render;
 pub mod rocks;
 pub mod satellite;
@@ -16,6 +17,7 @@ pub mod shading;
 pub mod surface;
 pub mod terrain;
 pub mod trajectory;
+pub mod world_features;
 
 pub use dataset::{
     DatasetPlan, DatasetSummary, SimConfig, Stage, generate_dataset, plan_dataset, write_dataset,
@@ -26,4 +28,7 @@ pub use error::{Result, SimError};
 pub use jointloc_formats::{ElevationInfo, ElevationModel, Grid, MapInfo};
 pub use satellite::{Difficulty, SatelliteConfig};
 pub use shading::{ShadingConfig, Sun, shade};
-pub use terrain::{Terrain, TerrainConfig, TerrainExtent, TerrainKind, generate_terrain};
+pub use terrain::{
+    FeatureLayout, Terrain, TerrainConfig, TerrainExtent, TerrainKind, generate_terrain,
+    generate_terrain_with,
+};

@@ -23,8 +23,12 @@ pub enum Difficulty {
     Easy,
     /// 12.5 cm/px map, sun 45° away in azimuth, 35° high.
     Medium,
-    /// 25 cm/px map (HiRISE class), sun 90° away in azimuth and low (25°), softer and noisier.
+    /// 25 cm/px map (HiRISE class), sun 90° away in azimuth and low (25°), softer and noisier,
+    /// with a HiRISE-like stereo DTM (1 m posts, 0.25 m noise, smoothed).
     Hard,
+    /// The Mars envelope: the `hard` map and DTM over a 2 km map, the map's sun 35–45° high
+    /// and 30–180° away in azimuth from the flight's, which is 15–60° high (drawn per seed).
+    Mars,
 }
 
 impl Difficulty {
@@ -37,6 +41,7 @@ impl Difficulty {
             Difficulty::Easy => "easy",
             Difficulty::Medium => "medium",
             Difficulty::Hard => "hard",
+            Difficulty::Mars => "mars",
         }
     }
 
@@ -57,7 +62,7 @@ impl Difficulty {
                 },
                 ..base
             },
-            Difficulty::Hard => SatelliteConfig {
+            Difficulty::Hard | Difficulty::Mars => SatelliteConfig {
                 gsd_m: 0.25,
                 sun_azimuth_change_deg: 90.0,
                 sun_elevation_deg: 25.0,
@@ -68,6 +73,7 @@ impl Difficulty {
                     gamma: 0.6,
                     ..base.sensor.clone()
                 },
+                dem: DemConfig::hirise(),
                 ..base
             },
         }

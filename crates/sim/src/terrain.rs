@@ -14,11 +14,12 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
-use crate::craters::{CraterPopulation, stamp_crater};
+use crate::craters::{Crater, CraterPopulation, stamp_crater};
 use crate::error::{Result, SimError};
 use crate::noise::derive_seed;
 use crate::rocks::{GolombekSfd, RockField, RockSampler, ejecta_blocks, stamp_rock};
 use crate::surface::{SurfaceModel, apply_slope_albedo};
+use crate::world_features::{Rect, WorldRockField, craters_over, world_ejecta_blocks};
 use jointloc_formats::Grid;
 
 /// The three terrain kinds of the paper's dataset.
@@ -267,6 +268,35 @@ mod stream {
     pub const ROCK_PATCHES: u64 = 5;
 }
 
+/// How craters and rocks are drawn.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum FeatureLayout {
+    /// From one stream over the extent: the datasets whose map is the flight's bounding box.
+    Extent,
+    /// Per world block ([`crate::world_features`]): any two extents, at any cell size, show
+    /// the same features where they overlap. Craters whose diameter bin ends below
+    /// `crater_from_m` and rocks whose octave ends below `rock_from_m` are left out (a coarse
+    /// grid cannot show them).
+    World {
+        crater_from_m: f64,
+        rock_from_m: f64,
+    },
+}
+
+impl FeatureLayout {
+    /// The world layout for a grid of `cell_m` cells: craters from 2 cells, rocks from half a
+    /// cell (smaller ones would only tint single cells).
+    pub fn world_for_cell(cell_m: f64) -> Self {
+        FeatureLayout::World {
+            crater_from_m: 2.0 * cell_m,
+            rock_from_m: 0.5 * cell_m,
+        }
+    }
+}
+
+/// Smallest ejecta block drawn in the world layout, whatever the cell (1.5 cells at 2.5 cm).
+const WORLD_EJECTA_MIN_M: f64 = 0.0375;
+
 /// Synthesises the heightfield and albedo of `kind` over `extent`.
 ///
 /// Memory: the two f32 grids (8 bytes per cell) plus the crater list (≈ 100 bytes per
@@ -276,6 +306,17 @@ pub fn generate_terrain(
     extent: &TerrainExtent,
     cfg: &TerrainConfig,
     seed: u64,
+) -> Result<Terrain> {
+    generate_terrain_with(kind, extent, cfg, seed, FeatureLayout::Extent)
+}
+
+/// [`generate_terrain`] with the features drawn as `layout` says.
+pub fn generate_terrain_with(
+    kind: TerrainKind,
+    extent: &TerrainExtent,
+    cfg: &TerrainConfig,
+    seed: u64,
+    layout: FeatureLayout,
 ) -> Result<Terrain> {
     cfg.validate()?;
     let (w, h) = (extent.width_cells, extent.height_cells);
@@ -318,8 +359,18 @@ pub fn generate_terrain(
         min_diameter_m: cfg.crater_min_diameter_m,
         max_diameter_m: cfg.crater_max_diameter_m,
     };
-    let mut rng = ChaCha8Rng::seed_from_u64(derive_seed(seed, stream::CRATERS));
-    let mut craters = crater_pop.sample(x0, y0, x1, y1, &mut rng);
+    let mut craters = match layout {
+        FeatureLayout::Extent => {
+            let mut rng = ChaCha8Rng::seed_from_u64(derive_seed(seed, stream::CRATERS));
+            crater_pop.sample(x0, y0, x1, y1, &mut rng)
+        }
+        FeatureLayout::World { crater_from_m, .. } => craters_over(
+            &crater_pop,
+            (x0, y0, x1, y1),
+            crater_from_m,
+            derive_seed(seed, stream::CRATERS),
+        ),
+    };
     for c in &mut craters {
         c.ejecta_tone *= cfg.albedo_contrast as f32;
         c.floor_tone *= cfg.albedo_contrast as f32;
@@ -334,7 +385,22 @@ pub fn generate_terrain(
 
     let min_3d = 1.5 * cell;
     let k = cfg.rock_abundance.unwrap_or(defaults.rock_abundance);
-    if k > 0.0 {
+    if let FeatureLayout::World {
+        rock_from_m,
+        crater_from_m: _,
+    } = layout
+    {
+        stamp_world_rocks(
+            &mut terrain,
+            (x0, y0, x1, y1),
+            cfg,
+            k,
+            &craters,
+            &surface,
+            rock_from_m,
+            seed,
+        );
+    } else if k > 0.0 {
         let field = RockField {
             sampler: RockSampler::new(
                 GolombekSfd::new(k),
@@ -359,12 +425,14 @@ pub fn generate_terrain(
         );
         tracing::debug!(kind = ?kind, rocks = count, k, "stamped rock field");
     }
-    let mut rng = ChaCha8Rng::seed_from_u64(derive_seed(seed, stream::BLOCKS));
-    let block_min = cfg.rock_min_diameter_m.max(min_3d);
-    for c in craters.iter().rev() {
-        ejecta_blocks(c, block_min, cfg.rock_height_ratio, &mut rng, |r| {
-            stamp_rock(&mut terrain, r, min_3d)
-        });
+    if layout == FeatureLayout::Extent {
+        let mut rng = ChaCha8Rng::seed_from_u64(derive_seed(seed, stream::BLOCKS));
+        let block_min = cfg.rock_min_diameter_m.max(min_3d);
+        for c in craters.iter().rev() {
+            ejecta_blocks(c, block_min, cfg.rock_height_ratio, &mut rng, |r| {
+                stamp_rock(&mut terrain, r, min_3d)
+            });
+        }
     }
     tracing::debug!(
         kind = ?kind,
@@ -374,6 +442,48 @@ pub fn generate_terrain(
         "terrain synthesised"
     );
     Ok(terrain)
+}
+
+/// The rock field and the craters' ejecta blocks of the world layout.
+#[allow(clippy::too_many_arguments)]
+fn stamp_world_rocks(
+    terrain: &mut Terrain,
+    rect: Rect,
+    cfg: &TerrainConfig,
+    k: f64,
+    craters: &[Crater],
+    surface: &SurfaceModel,
+    rock_from_m: f64,
+    seed: u64,
+) {
+    let min_3d = 1.5 * terrain.cell_m;
+    if k > 0.0 {
+        let field = WorldRockField::new(
+            k,
+            cfg.rock_min_diameter_m,
+            cfg.rock_max_diameter_m,
+            cfg.rock_height_ratio,
+        );
+        let patches = surface.rock_patches(derive_seed(seed, stream::ROCK_PATCHES));
+        field.for_each_rock(
+            rect,
+            rock_from_m,
+            derive_seed(seed, stream::ROCKS),
+            |x, y| patches.keep(x, y),
+            |r| stamp_rock(terrain, r, min_3d),
+        );
+    }
+    let block_min = cfg.rock_min_diameter_m.max(WORLD_EJECTA_MIN_M);
+    for c in craters.iter().rev() {
+        world_ejecta_blocks(
+            c,
+            block_min,
+            cfg.rock_height_ratio,
+            rock_from_m,
+            derive_seed(seed, stream::BLOCKS),
+            |r| stamp_rock(terrain, r, min_3d),
+        );
+    }
 }
 
 #[cfg(test)]

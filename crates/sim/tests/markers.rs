@@ -93,6 +93,11 @@ struct Case {
     difficulty: Difficulty,
     distortion: Option<RadTan>,
     seed: u64,
+    /// Flight height (m); above 20 m the camera is 500 × 500 at f = 500 and the markers lie
+    /// on a 25 m grid around the path instead of beside it.
+    altitude_m: f64,
+    /// A map larger than the flight (the detailed patch blended into a coarse render).
+    map_size_m: Option<f64>,
 }
 
 fn run_case(case: &Case, tmp: &Path) {
@@ -111,14 +116,19 @@ fn run_case(case: &Case, tmp: &Path) {
     };
     cfg.trajectory.length_m = 10.0;
     cfg.trajectory.rate_hz = 2.0;
+    cfg.trajectory.altitude_m = case.altitude_m;
+    cfg.map_size_m = case.map_size_m;
     // Larger than the default jitter, so roll and pitch matter.
     cfg.trajectory.attitude_jitter_deg = 3.0;
-    cfg.camera.width = 240;
-    cfg.camera.height = 200;
-    cfg.camera.fx = 240.0;
-    cfg.camera.fy = 236.0;
-    cfg.camera.cx = 121.3;
-    cfg.camera.cy = 98.2;
+    let high = case.altitude_m > 20.0;
+    if !high {
+        cfg.camera.width = 240;
+        cfg.camera.height = 200;
+        cfg.camera.fx = 240.0;
+        cfg.camera.fy = 236.0;
+        cfg.camera.cx = 121.3;
+        cfg.camera.cy = 98.2;
+    }
     cfg.camera.distortion = case.distortion;
     let mut sat = case.difficulty.satellite_config();
     sat.sensor = SensorConfig {
@@ -128,18 +138,33 @@ fn run_case(case: &Case, tmp: &Path) {
     cfg.satellite = Some(sat.clone());
 
     let plan = plan_dataset(&cfg).unwrap();
-    let cell = cfg.terrain.cell_m;
+    let cell = plan.terrain.cell_m;
     let plain = smooth_terrain(&plan, cell);
     let mut marked = plain.clone();
-    let radius_cells = (1.5 * sat.gsd_m / cell).max(8.0);
+    // Small enough that the light does not change across a marker (which would pull its
+    // centroid), large enough to be seen: 8 cells, 4 when a cell is a map pixel (1 m at 25 cm).
+    let min_radius = if high { 4.0 } else { 8.0 };
+    let radius_cells = (1.5 * sat.gsd_m / cell).max(min_radius);
     let mut markers = Vec::new();
-    // Every 3 m along the path, 1.7 m to alternate sides: far enough apart that no window
-    // sees two markers.
-    for (k, s) in plan.path.samples.iter().enumerate().step_by(6) {
-        let side = if k % 12 == 0 { 1.0 } else { -1.0 };
-        let (dx, dy) = (side * 1.7 * s.heading.sin(), -side * 1.7 * s.heading.cos());
-        let (x, y) = paint(&mut marked, s.x + dx, s.y + dy, radius_cells);
-        markers.push(Point3::new(x, y, marked.height_at(x, y)));
+    if high {
+        // A 25 m grid over the footprint around the start.
+        let s0 = &plan.path.samples[0];
+        for i in -2..=2 {
+            for j in -2..=2 {
+                let (x, y) = (s0.x + 25.0 * i as f64, s0.y + 25.0 * j as f64);
+                let (x, y) = paint(&mut marked, x, y, radius_cells);
+                markers.push(Point3::new(x, y, marked.height_at(x, y)));
+            }
+        }
+    } else {
+        // Every 3 m along the path, 1.7 m to alternate sides: far enough apart that no window
+        // sees two markers.
+        for (k, s) in plan.path.samples.iter().enumerate().step_by(6) {
+            let side = if k % 12 == 0 { 1.0 } else { -1.0 };
+            let (dx, dy) = (side * 1.7 * s.heading.sin(), -side * 1.7 * s.heading.cos());
+            let (x, y) = paint(&mut marked, s.x + dx, s.y + dy, radius_cells);
+            markers.push(Point3::new(x, y, marked.height_at(x, y)));
+        }
     }
 
     let (a, b) = (tmp.join("with"), tmp.join("without"));
@@ -203,8 +228,9 @@ fn run_case(case: &Case, tmp: &Path) {
         );
     }
     eprintln!(
-        "{:?} distortion={}: {checked} UAV sightings, worst {worst:.3} px; {} map markers, worst {map_worst:.3} px",
+        "{:?} {} m distortion={}: {checked} UAV sightings, worst {worst:.3} px; {} map markers, worst {map_worst:.3} px",
         case.difficulty,
+        case.altitude_m,
         case.distortion.is_some(),
         markers.len()
     );
@@ -220,7 +246,11 @@ fn run_case(case: &Case, tmp: &Path) {
             value.parse::<f64>().unwrap() - (c.z - plain.height_at(c.x, c.y))
         })
         .collect();
-    assert!(errors.iter().all(|e| e.abs() < 5.0 * cfg.altimeter_sigma_m));
+    assert!(
+        errors
+            .iter()
+            .all(|e| e.abs() < 5.0 * cfg.altimeter_noise_m())
+    );
     assert!(
         errors.iter().any(|e| e.abs() > 1e-3),
         "altimeter must not be exact"
@@ -249,6 +279,8 @@ fn markers_land_where_ground_truth_and_georeference_predict() {
             difficulty: Difficulty::Easy,
             distortion: None,
             seed: 1,
+            altitude_m: 10.0,
+            map_size_m: None,
         },
         Case {
             difficulty: Difficulty::Medium,
@@ -260,11 +292,23 @@ fn markers_land_where_ground_truth_and_georeference_predict() {
                 k3: 0.0,
             }),
             seed: 2,
+            altitude_m: 10.0,
+            map_size_m: None,
         },
         Case {
             difficulty: Difficulty::Hard,
             distortion: None,
             seed: 3,
+            altitude_m: 10.0,
+            map_size_m: None,
+        },
+        // 200 m over a 25 cm/px map larger than the flight.
+        Case {
+            difficulty: Difficulty::Hard,
+            distortion: None,
+            seed: 4,
+            altitude_m: 200.0,
+            map_size_m: Some(500.0),
         },
     ];
     for case in &cases {
