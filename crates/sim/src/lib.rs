@@ -3,6 +3,7 @@
 //! writer. The dataset's files (map.toml, elevation model, camera.yaml, the UAV sequence) are
 //! written through `jointloc_formats`, whose readers every other crate uses.
 
+pub mod config;
 pub mod craters;
 pub mod dataset;
 pub mod dem;
