@@ -137,3 +137,79 @@ fn existing_dataset_needs_force() {
     assert!(!out.join("uav/images/000003.png").exists());
     assert_eq!(std::fs::read(out.join("notes.txt")).unwrap(), b"keep me");
 }
+
+#[test]
+fn envelope_options_out_of_range_name_the_option() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("ds");
+    let outs = out.to_str().unwrap();
+    for (args, needles) in [
+        (
+            &["--sun-azimuth-change-deg", "200"][..],
+            &["sun_azimuth_change_deg", "[0, 180]"][..],
+        ),
+        (
+            &["--sun-elevation-deg", "0"],
+            &["sun_elevation_deg", "(0, 90]"],
+        ),
+        (
+            &["--flight-sun-elevation-deg", "91"],
+            &["flight_sun_elevation_deg"],
+        ),
+        (&["--map-size-m=-3"], &["--map-size-m"]),
+        (
+            &["--map-size-m", "20"],
+            &["map_size_m", "smaller than the flight"],
+        ),
+        (&["--altitude", "900"], &["altitude_m", "500"]),
+    ] {
+        let o = sim(&[&["--out", outs], args, TINY].concat());
+        fails_with(&o, needles);
+        assert!(!out.join("map.toml").exists());
+    }
+}
+
+#[test]
+fn a_map_larger_than_the_flight_at_high_altitude_under_another_sun() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("ds");
+    let o = sim(&[
+        &[][..],
+        &[
+            "--out",
+            out.to_str().unwrap(),
+            "--seed",
+            "2",
+            "--difficulty",
+            "mars",
+        ],
+        &[
+            "--map-size-m",
+            "300",
+            "--altitude",
+            "120",
+            "--sun-azimuth-change-deg",
+            "180",
+        ],
+        &["--flight-sun-elevation-deg", "15"],
+        TINY,
+    ]
+    .concat());
+    assert!(o.status.success(), "{}", stderr(&o));
+    let map = std::fs::read_to_string(out.join("map.toml")).unwrap();
+    // 300 m at 25 cm/px (tiles of 64 × 48, stride 32 × 24), a 1 m DEM, the detailed region.
+    for needle in [
+        "gsd_m = 0.25",
+        "width_px = 1216",
+        "gsd_m = 1.0",
+        "detailed_region_px",
+        "difficulty = \"mars\"",
+    ] {
+        assert!(map.contains(needle), "map.toml lacks {needle}:\n{map}");
+    }
+    let sim_toml = std::fs::read_to_string(out.join("sim.toml")).unwrap();
+    assert!(
+        sim_toml.contains("sun_azimuth_change_deg = 180.0"),
+        "{sim_toml}"
+    );
+}
