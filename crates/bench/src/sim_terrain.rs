@@ -8,7 +8,7 @@ use std::path::Path;
 use jointloc_formats::MapInfo;
 use jointloc_formats::UavDataset;
 use jointloc_sim::dataset::sub_seed;
-use jointloc_sim::{SimConfig, Terrain, generate_terrain, plan_dataset};
+use jointloc_sim::{SimConfig, Terrain, generate_terrain_with, plan_dataset};
 
 /// The simulator's random stream for terrain synthesis (`jointloc_sim::dataset`); the check
 /// against the altimeter catches a change.
@@ -45,11 +45,12 @@ pub fn regenerate(dir: &Path, dataset: &UavDataset) -> Option<Terrain> {
         Err(e) => return why_not(e.to_string()),
     }
     let clock = std::time::Instant::now();
-    let terrain = match generate_terrain(
+    let terrain = match generate_terrain_with(
         cfg.terrain_kind,
         &plan.extent,
-        &cfg.terrain,
+        &plan.terrain,
         sub_seed(cfg.seed, TERRAIN_STREAM),
+        plan.layout,
     ) {
         Ok(t) => t,
         Err(e) => return why_not(e.to_string()),
@@ -69,7 +70,7 @@ pub fn regenerate(dir: &Path, dataset: &UavDataset) -> Option<Terrain> {
     }
     residuals.sort_by(f64::total_cmp);
     let median = residuals[residuals.len() / 2];
-    let tolerance = 3.0 * cfg.altimeter_sigma_m + 0.02;
+    let tolerance = 3.0 * cfg.altimeter_noise_m() + 0.02;
     if median > tolerance {
         return why_not(format!(
             "camera heights disagree with the altimeter (median {median:.3} m)"
