@@ -6,6 +6,7 @@ mod absloc;
 mod bench;
 mod demo;
 mod eval;
+mod map;
 mod matching;
 mod models;
 mod run;
@@ -35,6 +36,8 @@ enum Command {
     Demo(demo::Args),
     /// APE/RPE of a trajectory against ground truth (same numbers as evo_ape / evo_rpe).
     Eval(eval::Args),
+    /// Map folders from GeoTIFF: `map import --image ORTHO.tif [--dem DTM.tif] --out DIR`.
+    Map(map::Args),
     /// Matcher benchmark on image pairs with a known homography (@N px, ms per pair).
     Match(matching::Args),
     /// Install (`fetch`) or show (`list`) the pretrained weights and the ONNX Runtime library.
@@ -60,6 +63,7 @@ fn main() -> std::process::ExitCode {
         Command::Bench(args) => bench::run(args),
         Command::Demo(args) => demo::run(args),
         Command::Eval(args) => eval::run(args),
+        Command::Map(args) => map::run(args),
         Command::Match(args) => matching::run(args),
         Command::Models(args) => models::run(args),
         Command::Run(args) => run::run(args),

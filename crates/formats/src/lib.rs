@@ -2,8 +2,10 @@
 //! writer and one set of rules, so every crate above reads a dataset the same way:
 //!
 //! - [`error`]: [`FormatError`], naming the file (and line) and what is wrong.
+//! - [`map_import`]: a GeoTIFF orthoimage and DTM into a map folder (`jointloc map import`).
 //! - [`map_toml`]: `map.toml`, the georeference of the satellite map and its tiles.
 //! - [`elevation`]: the map's elevation model (16-bit PNG + `[elevation]` of `map.toml`).
+//! - [`geotiff`]: GeoTIFF orthoimages and DTMs with their georeference and CRS.
 //! - [`grid`]: the row-major grid the elevation model (and the simulator) store values in.
 //! - [`camera_yaml`]: `camera.yaml`, the UAV camera in ORB-SLAM2's settings layout.
 //! - [`sequence`]: the UAV sequence (`uav/images.txt`, `altimeter.txt`, `gt.txt`).
@@ -14,7 +16,9 @@ pub mod camera_yaml;
 pub mod dataset;
 pub mod elevation;
 pub mod error;
+pub mod geotiff;
 pub mod grid;
+pub mod map_import;
 pub mod map_toml;
 pub mod outputs;
 pub mod sequence;
@@ -24,5 +28,5 @@ pub use dataset::UavDataset;
 pub use elevation::{ElevationInfo, ElevationModel};
 pub use error::{FormatError, Result};
 pub use grid::Grid;
-pub use map_toml::{MapInfo, SceneInfo, SunInfo, Tile, TileGrid};
+pub use map_toml::{MapCrs, MapInfo, SceneInfo, SunInfo, Tile, TileGrid};
 pub use sequence::{InputFault, InputFaultKind, Sequence, SequenceFrame};

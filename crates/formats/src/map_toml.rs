@@ -45,6 +45,38 @@ pub struct MapInfo {
     /// How the map was made (absent for maps not from the simulator).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub scene: Option<SceneInfo>,
+    /// The map's coordinate reference system and where world (0, 0) lies in it (maps
+    /// imported from GeoTIFF; absent: the map has only its local frame).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub crs: Option<MapCrs>,
+}
+
+/// The CRS of an imported map. The world frame is the CRS translated: easting
+/// `= easting_m + x`, northing `= northing_m + y`, both metres (x east, y north).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct MapCrs {
+    /// EPSG code, when the source names one.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub epsg: Option<u32>,
+    /// The CRS's description as the source gave it (GeoTIFF citation), when present.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub citation: Option<String>,
+    /// The projection's GeoKeys as `name=value` text: the CRS's definition when it has no
+    /// EPSG code (Mars CRSs).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub geokeys: Option<String>,
+    /// Easting and northing of world (0, 0): the centre of map pixel (0, 0).
+    pub easting_m: f64,
+    pub northing_m: f64,
+    /// The file the map was imported from (its name only).
+    pub source: String,
+}
+
+impl MapCrs {
+    /// Map coordinates (easting, northing) of world `(x, y)`.
+    pub fn world_to_map(&self, x: f64, y: f64) -> (f64, f64) {
+        (self.easting_m + x, self.northing_m + y)
+    }
 }
 
 /// Layout of the tiles.
@@ -124,17 +156,29 @@ impl Tile {
 
 /// Start offsets of windows of size `tile` with `stride` covering `len`: the last one is
 /// moved flush with the end when the stride does not divide.
+/// (`tile <= len`, `stride > 0`; in `u64` so that strides near `u32::MAX` cannot overflow.)
 fn offsets(len: u32, tile: u32, stride: u32) -> Vec<u32> {
     let mut out = Vec::new();
-    let mut x = 0;
-    while x + tile < len {
-        out.push(x);
-        x += stride;
+    let mut x = 0u64;
+    while x + u64::from(tile) < u64::from(len) {
+        out.push(x as u32);
+        x += u64::from(stride);
     }
     out.push(len - tile);
     out.dedup();
     out
 }
+
+/// How many offsets [`offsets`] gives, without building them (same preconditions).
+fn offset_count(len: u32, tile: u32, stride: u32) -> u64 {
+    u64::from(len - tile).div_ceil(u64::from(stride)) + 1
+}
+
+/// Most tiles a `map.toml` may declare: checked before any per-tile allocation.
+pub const MAX_TILES: u64 = 1 << 20;
+
+/// Most pixels a map may have (65536 × 65536): checked before the map image is allocated.
+pub const MAX_MAP_PIXELS: u64 = 1 << 32;
 
 /// Stride of tiles of `size` with `overlap`.
 pub fn tile_stride(size: u32, overlap: f64) -> u32 {
@@ -188,6 +232,7 @@ impl MapInfo {
             },
             elevation: None,
             scene: None,
+            crs: None,
         };
         info.validate(Path::new("map.toml"))?;
         Ok(info)
@@ -266,14 +311,27 @@ impl MapInfo {
                 t.overlap
             )));
         }
+        let pixels = u64::from(self.width_px) * u64::from(self.height_px);
+        if pixels > MAX_MAP_PIXELS {
+            return Err(err(format!(
+                "map of {}x{} px is larger than the {MAX_MAP_PIXELS} pixels supported",
+                self.width_px, self.height_px
+            )));
+        }
+        // Counted, not listed: a hostile layout (1-px tiles on a huge map) must not allocate.
         let (cols, rows) = (
-            offsets(self.width_px, t.width_px, t.stride_x_px).len() as u32,
-            offsets(self.height_px, t.height_px, t.stride_y_px).len() as u32,
+            offset_count(self.width_px, t.width_px, t.stride_x_px),
+            offset_count(self.height_px, t.height_px, t.stride_y_px),
         );
-        if (cols, rows) != (t.cols, t.rows) {
+        if (cols, rows) != (u64::from(t.cols), u64::from(t.rows)) {
             return Err(err(format!(
                 "tiles.cols/rows = {}/{} disagree with the layout ({cols}/{rows})",
                 t.cols, t.rows
+            )));
+        }
+        if cols * rows > MAX_TILES {
+            return Err(err(format!(
+                "{cols}x{rows} tiles is more than the {MAX_TILES} supported"
             )));
         }
         if let Some(e) = &self.elevation {
