@@ -276,6 +276,10 @@ impl<'a> Builder<'a> {
         if norm <= 1e-12 {
             return Err(self.parse_error(line, "quaternion has zero norm".to_string()));
         }
+        // Components near f64::MAX overflow the norm: normalising would give zeros or NaN.
+        if !norm.is_finite() {
+            return Err(self.parse_error(line, "quaternion norm overflows".to_string()));
+        }
         let rotation = UnitQuaternion::from_quaternion(q);
         self.timestamps.push(t);
         self.poses.push(CameraToWorld::from_rotation_translation(

@@ -193,10 +193,12 @@ fn read_legacy(bytes: &[u8]) -> Result<BTreeMap<String, Tensor>, String> {
         let numel = u64::from_le_bytes(header.try_into().expect("8 bytes")) as usize;
         pos += 8;
         let len = numel.checked_mul(size).ok_or("storage size overflows")?;
-        let data = bytes
-            .get(pos..pos + len)
+        let end = pos
+            .checked_add(len)
+            .filter(|&end| end <= bytes.len())
             .ok_or_else(|| format!("storage {key} truncated"))?;
-        pos += len;
+        let data = &bytes[pos..end];
+        pos = end;
         storages.insert(key, data.to_vec());
     }
     materialise(views, &storages)
@@ -280,12 +282,18 @@ fn half_to_f32(h: u16) -> f32 {
     }
 }
 
+/// Elements that views may read beyond their storages' sizes in all (a view with stride 0, as
+/// of an expanded tensor, reads elements more than once): the bound keeps a tiny file from
+/// asking for a huge tensor.
+const MAX_REPEATED_ELEMENTS: usize = 1 << 24;
+
 fn materialise(
     views: Vec<(String, TensorView)>,
     storages: &Storages,
 ) -> Result<BTreeMap<String, Tensor>, String> {
     let mut decoded: HashMap<&str, Vec<f32>> = HashMap::new();
     let mut out = BTreeMap::new();
+    let mut repeats_left = MAX_REPEATED_ELEMENTS;
     for (name, view) in views {
         if !decoded.contains_key(view.storage_key.as_str()) {
             let raw = storages
@@ -298,7 +306,33 @@ fn materialise(
         if view.shape.len() != view.stride.len() {
             return Err(format!("{name}: size and stride differ in length"));
         }
-        let numel: usize = view.shape.iter().product();
+        // Sizes and strides come from the file: checked before anything is allocated.
+        let numel = view
+            .shape
+            .iter()
+            .try_fold(1usize, |n, &d| n.checked_mul(d))
+            .ok_or_else(|| format!("{name}: size {:?} overflows", view.shape))?;
+        if numel > 0 {
+            let last = view
+                .shape
+                .iter()
+                .zip(&view.stride)
+                .try_fold(view.offset, |at, (&d, &s)| {
+                    (d - 1).checked_mul(s).and_then(|step| at.checked_add(step))
+                });
+            if last.is_none_or(|last| last >= storage.len()) {
+                return Err(format!("{name}: view exceeds its storage"));
+            }
+        }
+        if let Some(repeats) = numel.checked_sub(storage.len()).filter(|&r| r > 0) {
+            repeats_left = repeats_left.checked_sub(repeats).ok_or_else(|| {
+                format!(
+                    "{name}: view of {numel} elements on a storage of {} repeats more \
+                     elements than the {MAX_REPEATED_ELEMENTS} allowed",
+                    storage.len()
+                )
+            })?;
+        }
         let mut data = Vec::with_capacity(numel);
         let mut index = vec![0usize; view.shape.len()];
         for _ in 0..numel {

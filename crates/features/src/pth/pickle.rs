@@ -57,10 +57,21 @@ fn err<T>(message: impl Into<String>) -> Res<T> {
     Err(PickleError(message.into()))
 }
 
+/// Deepest nesting of values accepted (a state dict needs about ten): deeper values would
+/// overflow the stack when they are dropped, compared or walked.
+pub const MAX_DEPTH: u32 = 100;
+
+/// Bytes the memo may copy in all, beyond [`COPY_BYTES_PER_INPUT_BYTE`] per input byte. Python
+/// shares memoised objects; this reader copies them, so a few bytes of BINGET/BINPUT could
+/// otherwise double a value at each step (a "billion laughs").
+pub const COPY_BUDGET: usize = 64 << 20;
+pub const COPY_BYTES_PER_INPUT_BYTE: usize = 1024;
+
+/// A value on the stack or in the memo, with its nesting depth (1 for a leaf).
 #[derive(Debug)]
 enum Slot {
     Mark,
-    Value(Value),
+    Value(Value, u32),
 }
 
 /// Runs one pickle from `bytes`; returns the unpickled value and the number of bytes consumed.
@@ -70,6 +81,10 @@ pub fn unpickle(bytes: &[u8]) -> Res<(Value, usize)> {
         pos: 0,
         stack: Vec::new(),
         memo: HashMap::new(),
+        copy_budget: bytes
+            .len()
+            .saturating_mul(COPY_BYTES_PER_INPUT_BYTE)
+            .saturating_add(COPY_BUDGET),
     };
     let value = machine.run()?;
     Ok((value, machine.pos))
@@ -79,7 +94,35 @@ struct Machine<'a> {
     bytes: &'a [u8],
     pos: usize,
     stack: Vec<Slot>,
-    memo: HashMap<u32, Value>,
+    memo: HashMap<u32, (Value, u32)>,
+    /// Bytes the memo may still copy.
+    copy_budget: usize,
+}
+
+/// Approximate heap size of `v` (bounded recursion: values are at most [`MAX_DEPTH`] deep).
+fn weight(v: &Value) -> usize {
+    let own = std::mem::size_of::<Value>();
+    own + match v {
+        Value::Str(s) => s.len(),
+        Value::Bytes(b) => b.len(),
+        Value::Tuple(items) | Value::List(items) => items.iter().map(weight).sum(),
+        Value::Dict(items) => items.iter().map(|(k, v)| weight(k) + weight(v)).sum(),
+        Value::Global { module, name } => module.len() + name.len(),
+        Value::PersistentId(v) => weight(v),
+        Value::Tensor(t) => {
+            t.storage_key.len() + t.storage_type.len() + 8 * (t.shape.len() + t.stride.len())
+        }
+        Value::Call { func, args } => weight(func) + weight(args),
+        Value::None | Value::Bool(_) | Value::Int(_) | Value::Float(_) => 0,
+    }
+}
+
+/// The depth of a container holding a child of depth `child`, or an error past [`MAX_DEPTH`].
+fn parent_depth(child: u32) -> Res<u32> {
+    if child >= MAX_DEPTH {
+        return err(format!("values nested deeper than {MAX_DEPTH}"));
+    }
+    Ok(child + 1)
 }
 
 impl Machine<'_> {
@@ -124,55 +167,89 @@ impl Machine<'_> {
         }
     }
 
+    /// Pushes a leaf value.
     fn push(&mut self, v: Value) {
-        self.stack.push(Slot::Value(v));
+        self.stack.push(Slot::Value(v, 1));
+    }
+
+    /// Pushes a container whose deepest child has depth `child`.
+    fn push_parent(&mut self, v: Value, child: u32) -> Res<()> {
+        let depth = parent_depth(child)?;
+        self.stack.push(Slot::Value(v, depth));
+        Ok(())
     }
 
     fn pop(&mut self) -> Res<Value> {
+        Ok(self.pop_depth()?.0)
+    }
+
+    fn pop_depth(&mut self) -> Res<(Value, u32)> {
         match self.stack.pop() {
-            Some(Slot::Value(v)) => Ok(v),
+            Some(Slot::Value(v, d)) => Ok((v, d)),
             Some(Slot::Mark) => err("unexpected MARK on the stack"),
             None => err("stack underflow"),
         }
     }
 
-    fn top_mut(&mut self) -> Res<&mut Value> {
+    /// The value on top of the stack, which will hold children of depth up to `child`.
+    fn top_mut(&mut self, child: u32) -> Res<&mut Value> {
         match self.stack.last_mut() {
-            Some(Slot::Value(v)) => Ok(v),
+            Some(Slot::Value(v, d)) => {
+                *d = (*d).max(parent_depth(child)?);
+                Ok(v)
+            }
             _ => err("no value on top of the stack"),
         }
     }
 
-    /// Pops everything down to the last MARK.
-    fn pop_mark(&mut self) -> Res<Vec<Value>> {
+    /// Pops everything down to the last MARK, with the deepest item's depth (0: none).
+    fn pop_mark(&mut self) -> Res<(Vec<Value>, u32)> {
         let Some(mark) = self.stack.iter().rposition(|s| matches!(s, Slot::Mark)) else {
             return err("missing MARK");
         };
         let items = self.stack.split_off(mark + 1);
         self.stack.pop();
-        Ok(items
+        let mut depth = 0;
+        let items = items
             .into_iter()
             .map(|s| match s {
-                Slot::Value(v) => v,
+                Slot::Value(v, d) => {
+                    depth = depth.max(d);
+                    v
+                }
                 Slot::Mark => Value::None,
             })
-            .collect())
+            .collect();
+        Ok((items, depth))
+    }
+
+    /// Charges a copy of `v` to the memo's budget.
+    fn charge(&mut self, v: &Value) -> Res<()> {
+        let w = weight(v);
+        if w > self.copy_budget {
+            return err("memoised values copied beyond the size budget (a pickle bomb?)");
+        }
+        self.copy_budget -= w;
+        Ok(())
     }
 
     fn memo_put(&mut self, key: u32) -> Res<()> {
-        let v = match self.stack.last() {
-            Some(Slot::Value(v)) => v.clone(),
+        let (v, d) = match self.stack.last() {
+            Some(Slot::Value(v, d)) => (v, *d),
             _ => return err("memoize without a value"),
         };
-        self.memo.insert(key, v);
+        let v = v.clone();
+        self.charge(&v)?;
+        self.memo.insert(key, (v, d));
         Ok(())
     }
 
     fn memo_get(&mut self, key: u32) -> Res<()> {
         match self.memo.get(&key) {
-            Some(v) => {
-                let v = v.clone();
-                self.push(v);
+            Some((v, d)) => {
+                let (v, d) = (v.clone(), *d);
+                self.charge(&v)?;
+                self.stack.push(Slot::Value(v, d));
                 Ok(())
             }
             None => err(format!("memo key {key} not found")),
@@ -282,50 +359,53 @@ impl Machine<'_> {
                     self.memo_get(k)?;
                 }
                 b't' => {
-                    let items = self.pop_mark()?;
-                    self.push(Value::Tuple(items));
+                    let (items, d) = self.pop_mark()?;
+                    self.push_parent(Value::Tuple(items), d)?;
                 }
                 0x85..=0x87 => {
                     let n = (op - 0x84) as usize;
                     let mut items = Vec::with_capacity(n);
+                    let mut depth = 0;
                     for _ in 0..n {
-                        items.push(self.pop()?);
+                        let (v, d) = self.pop_depth()?;
+                        items.push(v);
+                        depth = depth.max(d);
                     }
                     items.reverse();
-                    self.push(Value::Tuple(items));
+                    self.push_parent(Value::Tuple(items), depth)?;
                 }
                 b'l' => {
-                    let items = self.pop_mark()?;
-                    self.push(Value::List(items));
+                    let (items, d) = self.pop_mark()?;
+                    self.push_parent(Value::List(items), d)?;
                 }
                 b'd' => {
-                    let items = self.pop_mark()?;
+                    let (items, d) = self.pop_mark()?;
                     let dict = pairs(items)?;
-                    self.push(Value::Dict(dict));
+                    self.push_parent(Value::Dict(dict), d)?;
                 }
                 b'a' => {
-                    let v = self.pop()?;
-                    match self.top_mut()? {
+                    let (v, d) = self.pop_depth()?;
+                    match self.top_mut(d)? {
                         Value::List(l) => l.push(v),
                         _ => return err("APPEND to a non-list"),
                     }
                 }
                 b'e' => {
-                    let items = self.pop_mark()?;
-                    match self.top_mut()? {
+                    let (items, d) = self.pop_mark()?;
+                    match self.top_mut(d)? {
                         Value::List(l) => l.extend(items),
                         _ => return err("APPENDS to a non-list"),
                     }
                 }
                 b's' => {
-                    let v = self.pop()?;
-                    let k = self.pop()?;
-                    set_items(self.top_mut()?, vec![(k, v)])?;
+                    let (v, dv) = self.pop_depth()?;
+                    let (k, dk) = self.pop_depth()?;
+                    set_items(self.top_mut(dv.max(dk))?, vec![(k, v)])?;
                 }
                 b'u' => {
-                    let items = self.pop_mark()?;
+                    let (items, d) = self.pop_mark()?;
                     let items = pairs(items)?;
-                    set_items(self.top_mut()?, items)?;
+                    set_items(self.top_mut(d)?, items)?;
                 }
                 b'c' => {
                     let module = self.line()?;
@@ -343,14 +423,14 @@ impl Machine<'_> {
                     }
                 }
                 b'Q' => {
-                    let pid = self.pop()?;
-                    self.push(Value::PersistentId(Box::new(pid)));
+                    let (pid, d) = self.pop_depth()?;
+                    self.push_parent(Value::PersistentId(Box::new(pid)), d)?;
                 }
                 b'R' | 0x81 => {
-                    let args = self.pop()?;
-                    let func = self.pop()?;
+                    let (args, da) = self.pop_depth()?;
+                    let (func, df) = self.pop_depth()?;
                     let v = call(func, args)?;
-                    self.push(v);
+                    self.push_parent(v, da.max(df))?;
                 }
                 b'b' => {
                     // BUILD: object state (e.g. an OrderedDict's `_metadata`); data is kept as is.
