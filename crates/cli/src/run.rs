@@ -77,6 +77,17 @@ pub struct Args {
     /// altimeter reading) instead of skipping it, counting it and flying on.
     #[arg(long)]
     strict: bool,
+    /// Frame of the trajectories and fixes written: `local` (the map's world frame, x east,
+    /// y north from the centre of map pixel (0, 0)) or `map` (easting, northing and height in
+    /// the map's CRS; needs a map imported from GeoTIFF, whose `map.toml` has `[crs]`).
+    #[arg(long, value_enum, default_value_t = OutCrs::Local)]
+    out_crs: OutCrs,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+enum OutCrs {
+    Local,
+    Map,
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
@@ -87,6 +98,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let size = (camera.width, camera.height);
     let (sequence, mut source) = tolerant::FrameSource::open(&args.dataset, args.strict)?;
     let tiles = MapTiles::open(&args.dataset)?;
+    let map_crs = match args.out_crs {
+        OutCrs::Local => None,
+        OutCrs::Map => Some(settings::map_crs(&args.dataset)?),
+    };
     let n = args.max_frames.unwrap_or(usize::MAX).min(sequence.len());
     let mode = if args.sequential {
         Mode::Sequential
@@ -124,6 +139,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         r.record_in(&mut outputs.summary);
     }
     source.report(&mut outputs);
+    if let Some(crs) = &map_crs {
+        outputs.into_map_frame(crs);
+    }
     outputs.write(&args.out, args.force)?;
     report::print(&outputs);
     report::evaluate_against_ground_truth(&args.dataset, &args.out, &mut outputs)?;

@@ -4,6 +4,9 @@
                                      # tiled BigTIFF, nodata, 1 m posts), mars16.tif (16-bit,
                                      # tiled, Mars equirectangular, no EPSG code)
     python map_import.py check DIR   # DIR/utm and DIR/mars: the imported map folders
+    python map_import.py togeotiff DATASET DIR E0 N0
+                                     # a simulated dataset's map and DEM as GeoTIFFs in the
+                                     # Mars equirectangular CRS, world (0, 0) at (E0, N0)
 """
 
 import sys
@@ -86,5 +89,27 @@ def check(d):
     print("ok")
 
 
+def togeotiff(dataset, d, e0, n0):
+    meta = tomllib.loads((dataset / "map.toml").read_text())
+    gsd = meta["gsd_m"]
+    sat = np.asarray(Image.open(dataset / meta["image"]))
+    # Pixel (0, 0) is centred on world (0, 0), i.e. on map (e0, n0): its corner is half a pixel off.
+    with rasterio.open(d / "satellite.tif", "w", driver="GTiff", count=1, width=sat.shape[1],
+                       height=sat.shape[0], dtype="uint8", crs=MARS, tiled=True,
+                       transform=from_origin(e0 - gsd / 2, n0 + gsd / 2, gsd, gsd)) as f:
+        f.write(sat, 1)
+    e = meta["elevation"]
+    posts = np.asarray(Image.open(dataset / e["image"])).astype(np.float64)
+    heights = (e["offset_m"] + posts * e["scale_m"]).astype(np.float32)
+    g = e["gsd_m"]
+    with rasterio.open(d / "elevation.tif", "w", driver="GTiff", count=1, width=heights.shape[1],
+                       height=heights.shape[0], dtype="float32", crs=MARS,
+                       transform=from_origin(e0 + e["origin_x_m"] - g / 2, n0 + e["origin_y_m"] + g / 2, g, g)) as f:
+        f.write(heights, 1)
+
+
 if __name__ == "__main__":
-    {"write": write, "check": check}[sys.argv[1]](Path(sys.argv[2]))
+    if sys.argv[1] == "togeotiff":
+        togeotiff(Path(sys.argv[2]), Path(sys.argv[3]), float(sys.argv[4]), float(sys.argv[5]))
+    else:
+        {"write": write, "check": check}[sys.argv[1]](Path(sys.argv[2]))

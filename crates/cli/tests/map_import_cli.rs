@@ -160,3 +160,146 @@ fn bad_geotiffs_are_errors_naming_the_file() {
     assert!(String::from_utf8_lossy(&o.stderr).contains("absent.tif"));
     assert!(!d.join("o").join("map.toml").exists());
 }
+
+/// TUM poses by timestamp string: position only.
+fn positions(path: &Path) -> Vec<(String, [f64; 3])> {
+    std::fs::read_to_string(path)
+        .unwrap()
+        .lines()
+        .filter(|l| !l.starts_with('#') && !l.trim().is_empty())
+        .map(|l| {
+            let v: Vec<&str> = l.split_whitespace().collect();
+            let p = |i: usize| v[i].parse::<f64>().unwrap();
+            (v[0].to_string(), [p(1), p(2), p(3)])
+        })
+        .collect()
+}
+
+fn copy_dir(from: &Path, to: &Path) {
+    std::fs::create_dir_all(to).unwrap();
+    for e in std::fs::read_dir(from).unwrap() {
+        let p = e.unwrap().path();
+        let target = to.join(p.file_name().unwrap());
+        if p.is_dir() {
+            copy_dir(&p, &target);
+        } else {
+            std::fs::copy(&p, &target).unwrap();
+        }
+    }
+}
+
+#[test]
+fn a_flight_over_a_map_that_went_through_geotiff_flies_the_same_and_speaks_map_coordinates() {
+    let base = common::base("31");
+    let data = common::dataset("31");
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    // The same flight with its map written as GeoTIFF by GDAL, then imported.
+    let imported = d.join("imported");
+    std::fs::create_dir_all(&imported).unwrap();
+    copy_dir(&data.join("uav"), &imported.join("uav"));
+    std::fs::copy(data.join("camera.yaml"), imported.join("camera.yaml")).unwrap();
+    let (e0, n0) = (4_590_960.0, 1_093_031.0); // Jezero crater in Mars equirectangular metres
+    let out = Command::new(python())
+        .arg(Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/map_import.py"))
+        .args([
+            "togeotiff",
+            s(&data),
+            s(d),
+            &e0.to_string(),
+            &n0.to_string(),
+        ])
+        .output()
+        .expect("python");
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let o = jointloc(&[
+        "map",
+        "import",
+        "--image",
+        s(&d.join("satellite.tif")),
+        "--dem",
+        s(&d.join("elevation.tif")),
+        "--out",
+        s(&imported),
+        "--dem-sigma-m",
+        "0.05",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+
+    // Same run, local frame: the same trajectory to 1 mm.
+    let run = |out: &Path, extra: &[&str]| {
+        let args: Vec<&str> = base
+            .args()
+            .iter()
+            .map(|a| {
+                if *a == s(&data) {
+                    s(&imported)
+                } else if *a == s(&base.out) {
+                    s(out)
+                } else {
+                    a
+                }
+            })
+            .chain(extra.iter().copied())
+            .collect();
+        let o = jointloc(&args);
+        assert!(
+            o.status.success(),
+            "{args:?}: {}",
+            String::from_utf8_lossy(&o.stderr)
+        );
+    };
+    let local = d.join("local");
+    run(&local, &[]);
+    for file in ["trajectory.tum", "trajectory-final.tum"] {
+        let (a, b) = (
+            positions(&base.out.join(file)),
+            positions(&local.join(file)),
+        );
+        assert_eq!(a.len(), b.len(), "{file}");
+        assert!(a.len() > 100, "{file}: {} poses", a.len());
+        for ((ta, pa), (tb, pb)) in a.iter().zip(&b) {
+            assert_eq!(ta, tb);
+            let err = (0..3).map(|k| (pa[k] - pb[k]).powi(2)).sum::<f64>().sqrt();
+            assert!(err < 1e-3, "{file} {ta}: {pa:?} vs {pb:?}");
+        }
+    }
+
+    // In the map's coordinates: the local trajectory shifted to (e0, n0), and the same APE
+    // against the ground truth (shifted the same way).
+    let mapped = d.join("map");
+    run(&mapped, &["--out-crs", "map"]);
+    let (a, b) = (
+        positions(&local.join("trajectory.tum")),
+        positions(&mapped.join("trajectory.tum")),
+    );
+    assert_eq!(a.len(), b.len());
+    for ((_, pa), (_, pb)) in a.iter().zip(&b) {
+        assert!((pb[0] - pa[0] - e0).abs() < 1e-3 && (pb[1] - pa[1] - n0).abs() < 1e-3);
+        assert!((pb[2] - pa[2]).abs() < 1e-6);
+    }
+    let (sl, sm) = (common::summary(&local), common::summary(&mapped));
+    assert_eq!(sm["output_crs"]["easting_m"], e0);
+    let ape = |v: &serde_json::Value| v["ape_translation"]["rmse"].as_f64().unwrap();
+    assert!(
+        (ape(&sl) - ape(&sm)).abs() < 1e-6,
+        "{} vs {}",
+        ape(&sl),
+        ape(&sm)
+    );
+    // A map without a CRS cannot give map coordinates.
+    let nocrs = d.join("nocrs");
+    let args: Vec<&str> = base
+        .args()
+        .iter()
+        .map(|a| if *a == s(&base.out) { s(&nocrs) } else { a })
+        .chain(["--out-crs", "map"])
+        .collect();
+    let o = jointloc(&args);
+    assert!(!o.status.success());
+    assert!(String::from_utf8_lossy(&o.stderr).contains("[crs]"));
+}

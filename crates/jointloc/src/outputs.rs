@@ -4,11 +4,15 @@
 
 use std::path::Path;
 
+use jointloc_formats::MapCrs;
 use jointloc_formats::outputs::{
-    OnlineFrame, Summary, TerrainSummary, TimingSummary, write_fixes, write_json, write_online_tum,
+    OnlineFrame, OnlineStatus, OutputCrs, Summary, TerrainSummary, TimingSummary, write_fixes,
+    write_json, write_online_tum,
 };
+use jointloc_geometry::CameraToWorld;
 use jointloc_geometry::trajectory::Trajectory;
 use jointloc_slam::system::median;
+use nalgebra::Vector3;
 
 use crate::error::{JointLocError, Result};
 use crate::system::{FixRecord, JointLoc};
@@ -32,6 +36,40 @@ pub struct Outputs {
 }
 
 impl Outputs {
+    /// Moves every pose and fix from the local world frame into the map's CRS
+    /// (`easting = easting_m + x`, `northing = northing_m + y`, heights unchanged) and records
+    /// it in the summary. Evaluate against local ground truth before, or shift it the same way.
+    pub fn into_map_frame(&mut self, crs: &MapCrs) {
+        if self.summary.output_crs.is_some() {
+            return;
+        }
+        let shift = Vector3::new(crs.easting_m, crs.northing_m, 0.0);
+        let moved = |p: &CameraToWorld| {
+            CameraToWorld::from_rotation_translation(p.rotation(), p.translation() + shift)
+        };
+        for f in &mut self.online {
+            if let OnlineStatus::World(p) = &mut f.status {
+                *p = moved(p);
+            }
+        }
+        for t in [&mut self.frames, &mut self.keyframes]
+            .into_iter()
+            .flatten()
+        {
+            t.poses.iter_mut().for_each(|p| *p = moved(p));
+        }
+        for f in &mut self.fixes {
+            f.position[0] += crs.easting_m;
+            f.position[1] += crs.northing_m;
+        }
+        self.summary.output_crs = Some(OutputCrs {
+            easting_m: crs.easting_m,
+            northing_m: crs.northing_m,
+            epsg: crs.epsg,
+            citation: crs.citation.clone(),
+        });
+    }
+
     /// The files [`Outputs::write`] writes.
     pub const FILES: [&str; 6] = [
         "trajectory.tum",
@@ -133,6 +171,7 @@ impl JointLoc {
             final_ba: end.final_ba,
             realtime: None,
             input_faults: self.altimeter_gate.counts(),
+            output_crs: None,
             evaluation: Default::default(),
         };
         let timing = TimingSummary {

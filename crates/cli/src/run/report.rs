@@ -83,7 +83,17 @@ pub(super) fn evaluate_against_ground_truth(
     if !gt_path.exists() || outputs.summary.world_poses < 3 {
         return Ok(());
     }
-    let gt = Trajectory::read_tum(&gt_path, &TumOptions::default())?;
+    let mut gt = Trajectory::read_tum(&gt_path, &TumOptions::default())?;
+    // Local ground truth against outputs in the map's CRS: shifted the same way.
+    if let Some(crs) = &outputs.summary.output_crs {
+        let shift = nalgebra::Vector3::new(crs.easting_m, crs.northing_m, 0.0);
+        for p in &mut gt.poses {
+            *p = jointloc_geometry::CameraToWorld::from_rotation_translation(
+                p.rotation(),
+                p.translation() + shift,
+            );
+        }
+    }
     let no_alignment = EvalConfig {
         align: AlignMode::None,
         ..Default::default()

@@ -61,3 +61,16 @@ fn number_pair(text: &str, separator: char) -> Option<(f64, f64)> {
     let (a, b) = text.split_once(separator)?;
     Some((a.trim().parse().ok()?, b.trim().parse().ok()?))
 }
+
+/// The CRS of the dataset's map, for `--out-crs map`.
+pub(super) fn map_crs(dataset: &std::path::Path) -> anyhow::Result<jointloc_formats::MapCrs> {
+    let path = dataset.join("map.toml");
+    let map = jointloc_formats::MapInfo::read(&path)?;
+    map.crs.ok_or_else(|| {
+        anyhow::anyhow!(
+            "{}: no [crs] section, so --out-crs map has no map coordinates to use (import the \
+             map from GeoTIFF with `jointloc map import`, or use --out-crs local)",
+            path.display()
+        )
+    })
+}

@@ -85,9 +85,25 @@ pub struct Summary {
     /// ([`crate::InputFaultKind::name`]); absent when there was none.
     #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
     pub input_faults: BTreeMap<String, usize>,
+    /// The map coordinates the trajectories and fixes are written in (`--out-crs map`);
+    /// absent: the local world frame of `map.toml`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub output_crs: Option<OutputCrs>,
     /// Evaluations added by the caller (e.g. `ape_translation` against ground truth).
     #[serde(flatten)]
     pub evaluation: BTreeMap<String, serde_json::Value>,
+}
+
+/// Outputs in the map's CRS: every position is the world position plus
+/// `(easting_m, northing_m, 0)`; heights stay the map's (the DTM's) heights.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+pub struct OutputCrs {
+    pub easting_m: f64,
+    pub northing_m: f64,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub epsg: Option<u32>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub citation: Option<String>,
 }
 
 /// `timing.json`: medians in milliseconds, and rates.
