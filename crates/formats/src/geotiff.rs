@@ -20,6 +20,9 @@ use crate::error::{FormatError, Result};
 
 /// Largest raster accepted, in pixels (a 40 000 × 40 000 scene).
 pub const MAX_PIXELS: u64 = 1_600_000_000;
+/// Largest ratio of decoded pixel bytes to file bytes believed (deflate tops out near 1032:1,
+/// 12-bit LZW near 2700:1).
+const MAX_RATIO: u64 = 4096;
 
 /// GeoKey ids (GeoTIFF 1.1, OGC 19-008r4).
 mod key {
@@ -131,9 +134,20 @@ pub fn read_geotiff(path: &Path) -> Result<GeoRaster> {
     limits.intermediate_buffer_size = (MAX_PIXELS * 8) as usize;
     let mut decoder = decoder.with_limits(limits);
     let colour = decoder.colortype().map_err(tiff_err)?;
-    if !matches!(colour, tiff::ColorType::Gray(_)) {
+    let tiff::ColorType::Gray(bits @ (8 | 16 | 32 | 64)) = colour else {
         return Err(bad(format!(
-            "{colour:?}: only single-band (grey) rasters are read; extract one band first"
+            "{colour:?}: only single-band (grey) rasters of 8, 16, 32 or 64 bits are read; \
+             extract one band first"
+        )));
+    };
+    // No compression TIFF uses packs more than ~4000:1, so a header claiming more pixels than
+    // that is corrupt: refuse it before allocating what it claims.
+    let claimed = w as u64 * h as u64 * (bits as u64 / 8);
+    let file_len = std::fs::metadata(path).map_or(0, |m| m.len());
+    if claimed > MAX_RATIO * file_len + 65_536 {
+        return Err(bad(format!(
+            "{w} × {h} pixels of {bits} bits cannot be held in a file of {file_len} bytes: \
+             the file is truncated or corrupt"
         )));
     }
     let samples = match decoder.read_image().map_err(tiff_err)? {
@@ -144,6 +158,14 @@ pub fn read_geotiff(path: &Path) -> Result<GeoRaster> {
         DecodingResult::F64(v) => Samples::F32(v.into_iter().map(|x| x as f32).collect()),
         _ => return Err(bad("unsupported sample type: use 8/16-bit or float".into())),
     };
+    let n = match &samples {
+        Samples::U8(v) => v.len(),
+        Samples::U16(v) => v.len(),
+        Samples::F32(v) => v.len(),
+    };
+    if n != w as usize * h as usize {
+        return Err(bad(format!("decoded {n} samples for {w} × {h} pixels")));
+    }
     Ok(GeoRaster {
         width: w as usize,
         height: h as usize,
