@@ -95,6 +95,10 @@ pub struct Args {
     /// Elevation of the flight's sun, degrees [default: drawn from the seed].
     #[arg(long)]
     flight_sun_elevation_deg: Option<f64>,
+    /// Also write the map and DEM as GeoTIFF (satellite.tif, elevation.tif) in the Mars
+    /// equirectangular CRS, for `jointloc map import`.
+    #[arg(long)]
+    geotiff: bool,
     /// No progress bar.
     #[arg(long)]
     quiet: bool,
@@ -183,6 +187,7 @@ fn config(args: &Args) -> anyhow::Result<SimConfig> {
     if args.flight_sun_elevation_deg.is_some() {
         cfg.flight_sun_elevation_deg = args.flight_sun_elevation_deg;
     }
+    cfg.geotiff |= args.geotiff;
     cfg.validate().context("invalid simulator configuration")?;
     Ok(cfg)
 }

@@ -108,8 +108,21 @@ def togeotiff(dataset, d, e0, n0):
         f.write(heights, 1)
 
 
+def checkmars(d):
+    """The simulator's GeoTIFFs, as GDAL reads them: Mars equirectangular, Jezero."""
+    for name in ["satellite.tif", "elevation.tif"]:
+        with rasterio.open(d / name) as f:
+            proj = f.crs.to_proj4()
+            assert "+proj=eqc" in proj and ("+R=3396190" in proj or "+a=3396190" in proj), proj
+            assert f.transform.a > 0 and f.transform.e < 0 and f.transform.b == 0, f.transform
+            assert 4_590_000 < f.transform.c < 4_600_000, f.transform
+    print("ok")
+
+
 if __name__ == "__main__":
-    if sys.argv[1] == "togeotiff":
+    if sys.argv[1] == "checkmars":
+        checkmars(Path(sys.argv[2]))
+    elif sys.argv[1] == "togeotiff":
         togeotiff(Path(sys.argv[2]), Path(sys.argv[3]), float(sys.argv[4]), float(sys.argv[5]))
     else:
         {"write": write, "check": check}[sys.argv[1]](Path(sys.argv[2]))

@@ -303,3 +303,69 @@ fn a_flight_over_a_map_that_went_through_geotiff_flies_the_same_and_speaks_map_c
     assert!(!o.status.success());
     assert!(String::from_utf8_lossy(&o.stderr).contains("[crs]"));
 }
+
+#[test]
+fn the_simulator_writes_geotiffs_that_gdal_places_on_mars_and_import_restores() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (d, back) = (tmp.path().join("sim"), tmp.path().join("back"));
+    let o = jointloc(&[
+        "sim",
+        "--out",
+        s(&d),
+        "--length-m",
+        "2",
+        "--width",
+        "96",
+        "--height",
+        "80",
+        "--fx",
+        "96",
+        "--geotiff",
+        "--quiet",
+        "--seed",
+        "4",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    script("checkmars", &d);
+    let o = jointloc(&[
+        "map",
+        "import",
+        "--image",
+        s(&d.join("satellite.tif")),
+        "--dem",
+        s(&d.join("elevation.tif")),
+        "--out",
+        s(&back),
+        "--tile-width",
+        "96",
+        "--tile-height",
+        "80",
+        "--dem-sigma-m",
+        "0.05",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let (a, b) = (
+        jointloc_formats::MapInfo::read(&d.join("map.toml")).unwrap(),
+        jointloc_formats::MapInfo::read(&back.join("map.toml")).unwrap(),
+    );
+    assert_eq!(
+        (a.width_px, a.height_px, a.gsd_m),
+        (b.width_px, b.height_px, b.gsd_m)
+    );
+    assert_eq!(a.tiles, b.tiles);
+    for tile in a.tile_list() {
+        let f = |dir: &Path| std::fs::read(dir.join("satellite").join(tile.file_name())).unwrap();
+        assert!(f(&d) == f(&back), "tile {} differs", tile.file_name());
+    }
+    let crs = b.crs.as_ref().unwrap();
+    assert_eq!((crs.easting_m, crs.northing_m), (4_590_960.0, 1_093_031.0));
+    let (ea, eb) = (a.elevation.as_ref().unwrap(), b.elevation.as_ref().unwrap());
+    assert!((ea.origin_x_m - eb.origin_x_m).abs() < 1e-6 && ea.gsd_m == eb.gsd_m);
+    let (ma, mb) = (
+        jointloc_formats::ElevationModel::read(ea, &d).unwrap(),
+        jointloc_formats::ElevationModel::read(eb, &back).unwrap(),
+    );
+    for (x, y) in [(1.0, -1.0), (3.3, -2.7), (0.2, -4.1)] {
+        assert!((ma.height_at(x, y) - mb.height_at(x, y)).abs() < 1e-3);
+    }
+}

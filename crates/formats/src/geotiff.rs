@@ -328,3 +328,82 @@ fn crs(keys: &[[u16; 4]], ascii: &str, doubles: &[f64]) -> std::result::Result<G
         geokeys: geokeys_text(keys, doubles),
     })
 }
+
+/// The Mars 2000 sphere's radius (IAU), metres.
+pub const MARS_RADIUS_M: f64 = 3_396_190.0;
+
+/// Writes one band as a GeoTIFF (deflate, strips) in the Mars equirectangular CRS (sphere of
+/// [`MARS_RADIUS_M`], standard parallel and central meridian 0), the GeoKeys GDAL writes for
+/// `+proj=eqc +R=3396190 +units=m`, so GIS tools place it on Mars.
+pub fn write_mars_geotiff(
+    path: &Path,
+    width: usize,
+    height: usize,
+    samples: &Samples,
+    transform: &GeoTransform,
+) -> Result<()> {
+    use tiff::encoder::{Compression, TiffEncoder, colortype};
+    let err =
+        |e: tiff::TiffError| FormatError::invalid(path, format!("cannot write the GeoTIFF: {e}"));
+    let file = File::create(path).map_err(|e| FormatError::io(path, e))?;
+    let mut enc = TiffEncoder::new(std::io::BufWriter::new(file))
+        .map_err(err)?
+        .with_compression(Compression::Deflate(Default::default()));
+    // PixelIsArea: the tie point is the corner of pixel (0, 0).
+    let half = 0.5 * transform.pixel_m;
+    let scale = [transform.pixel_m, transform.pixel_m, 0.0];
+    let tie = [
+        0.0,
+        0.0,
+        0.0,
+        transform.easting_m - half,
+        transform.northing_m + half,
+        0.0,
+    ];
+    let citation = "Mars 2000 equirectangular (sphere R = 3396190 m)|";
+    let doubles = [MARS_RADIUS_M, MARS_RADIUS_M, 0.0, 0.0, 0.0, 0.0, 0.0];
+    #[rustfmt::skip]
+    let keys: [u16; 4 * 19] = [
+        1, 1, 0, 18,
+        1024, 0, 1, 1, // GTModelTypeGeoKey: projected
+        1025, 0, 1, 1, // GTRasterTypeGeoKey: PixelIsArea
+        1026, 34737, citation.len() as u16, 0, // GTCitationGeoKey
+        2048, 0, 1, USER_DEFINED, // GeographicTypeGeoKey
+        2050, 0, 1, USER_DEFINED, // GeogGeodeticDatumGeoKey
+        2054, 0, 1, 9102, // GeogAngularUnitsGeoKey: degree
+        2056, 0, 1, USER_DEFINED, // GeogEllipsoidGeoKey
+        2057, 34736, 1, 0, // GeogSemiMajorAxisGeoKey
+        2058, 34736, 1, 1, // GeogSemiMinorAxisGeoKey
+        3072, 0, 1, USER_DEFINED, // ProjectedCSTypeGeoKey
+        3074, 0, 1, USER_DEFINED, // ProjectionGeoKey
+        3075, 0, 1, 17, // ProjCoordTransGeoKey: equirectangular
+        3076, 0, 1, UNIT_METRE, // ProjLinearUnitsGeoKey
+        3078, 34736, 1, 2, // ProjStdParallel1GeoKey
+        3082, 34736, 1, 3, // ProjFalseEastingGeoKey
+        3083, 34736, 1, 4, // ProjFalseNorthingGeoKey
+        3088, 34736, 1, 5, // ProjCenterLongGeoKey
+        3089, 34736, 1, 6, // ProjCenterLatGeoKey
+    ];
+    let (w, h) = (width as u32, height as u32);
+    macro_rules! write_band {
+        ($colour:ty, $data:expr) => {{
+            let mut img = enc.new_image::<$colour>(w, h).map_err(err)?;
+            let d = img.encoder();
+            d.write_tag(Tag::ModelPixelScaleTag, &scale[..])
+                .map_err(err)?;
+            d.write_tag(Tag::ModelTiepointTag, &tie[..]).map_err(err)?;
+            d.write_tag(Tag::GeoKeyDirectoryTag, &keys[..])
+                .map_err(err)?;
+            d.write_tag(Tag::GeoDoubleParamsTag, &doubles[..])
+                .map_err(err)?;
+            d.write_tag(Tag::GeoAsciiParamsTag, citation).map_err(err)?;
+            img.write_data($data).map_err(err)?;
+        }};
+    }
+    match samples {
+        Samples::U8(v) => write_band!(colortype::Gray8, v),
+        Samples::U16(v) => write_band!(colortype::Gray16, v),
+        Samples::F32(v) => write_band!(colortype::Gray32Float, v),
+    }
+    Ok(())
+}

@@ -51,6 +51,11 @@ pub struct SimConfig {
     pub sun_elevation_deg: Option<f64>,
     /// Elevation of the flight's sun, degrees; overrides the preset's draw.
     pub flight_sun_elevation_deg: Option<f64>,
+    /// Also write the map and the elevation model as GeoTIFF (`satellite.tif`,
+    /// `elevation.tif`) in the Mars equirectangular CRS, world (0, 0) at
+    /// [`GEOTIFF_ORIGIN_M`]: input for `jointloc map import`.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub geotiff: bool,
     /// Smallest distance from the flown path to the map edge, metres (raised automatically to
     /// cover the camera footprint).
     pub margin_m: f64,
@@ -79,6 +84,7 @@ impl Default for SimConfig {
             sun_azimuth_change_deg: None,
             sun_elevation_deg: None,
             flight_sun_elevation_deg: None,
+            geotiff: false,
             margin_m: 12.0,
             uav_sun: None,
             satellite: None,
@@ -101,6 +107,10 @@ pub(crate) mod stream {
     pub const MARS_SUN: u64 = 9;
     pub const PLACEMENT: u64 = 10;
 }
+
+/// Map coordinates (Mars equirectangular easting, northing; metres) of world (0, 0) in the
+/// GeoTIFFs the simulator writes: Jezero crater (77.45° E, 18.44° N).
+pub const GEOTIFF_ORIGIN_M: (f64, f64) = (4_590_960.0, 1_093_031.0);
 
 /// Default side of the `mars` preset's map, metres.
 pub const MARS_MAP_SIZE_M: f64 = 2000.0;

@@ -33,6 +33,7 @@ use serde::Serialize;
 use jointloc_formats::Grid;
 use jointloc_formats::camera_yaml::write_camera_yaml;
 use jointloc_formats::elevation::write_elevation_png;
+use jointloc_formats::geotiff::{GeoTransform, Samples, write_mars_geotiff};
 use jointloc_formats::map_toml::{MapInfo, SceneInfo, SunInfo, covered_length, tile_stride};
 use jointloc_formats::sequence::{FrameRecord, write_sequence};
 
@@ -47,7 +48,9 @@ use crate::terrain::{FeatureLayout, Terrain, TerrainConfig, TerrainExtent, gener
 use crate::trajectory::{PlanarPath, fly, plan_path};
 
 use crate::config::stream;
-pub use crate::config::{ELEVATION_IMAGE, MARS_MAP_SIZE_M, MAX_ALTITUDE_M, SimConfig, sub_seed};
+pub use crate::config::{
+    ELEVATION_IMAGE, GEOTIFF_ORIGIN_M, MARS_MAP_SIZE_M, MAX_ALTITUDE_M, SimConfig, sub_seed,
+};
 
 /// Where things go: computed before any terrain exists.
 #[derive(Debug, Clone)]
@@ -263,7 +266,9 @@ pub fn prepare_output_dir(dir: &Path, overwrite: bool) -> Result<()> {
             }
             for name in [
                 "satellite.png",
+                "satellite.tif",
                 "elevation.png",
+                "elevation.tif",
                 "camera.yaml",
                 "map.toml",
                 "sim.toml",
@@ -356,6 +361,15 @@ pub fn write_dataset(
         );
         drop(radiance);
         write_png(&out_dir.join(&plan.map.image), &image)?;
+        if cfg.geotiff {
+            write_mars_geotiff(
+                &out_dir.join(SATELLITE_GEOTIFF),
+                image.width,
+                image.height,
+                &Samples::U8(image.data.clone()),
+                &geotiff_transform(0.0, 0.0, plan.map.gsd_m),
+            )?;
+        }
         tiles.par_iter().try_for_each(|tile| {
             let window = crop(
                 &image,
@@ -393,6 +407,20 @@ pub fn write_dataset(
             )?,
         };
         write_elevation_png(&out_dir.join(&info.image), &dem)?;
+        if cfg.geotiff {
+            let heights = dem
+                .data
+                .iter()
+                .map(|&v| (info.offset_m + v as f64 * info.scale_m) as f32)
+                .collect();
+            write_mars_geotiff(
+                &out_dir.join(ELEVATION_GEOTIFF),
+                dem.width,
+                dem.height,
+                &Samples::F32(heights),
+                &geotiff_transform(info.origin_x_m, info.origin_y_m, info.gsd_m),
+            )?;
+        }
         map.elevation = Some(info);
     }
     map.write(&out_dir.join("map.toml"))?;
@@ -509,6 +537,19 @@ fn map_radiance_and_heights(
         &patch,
     )?;
     Ok((radiance, Some(heights)))
+}
+
+/// Names of the GeoTIFFs written with `geotiff`.
+pub const SATELLITE_GEOTIFF: &str = "satellite.tif";
+pub const ELEVATION_GEOTIFF: &str = "elevation.tif";
+
+/// The GeoTIFF georeference of a grid whose first cell is centred on world `(x, y)`.
+fn geotiff_transform(x: f64, y: f64, pixel_m: f64) -> GeoTransform {
+    GeoTransform {
+        easting_m: GEOTIFF_ORIGIN_M.0 + x,
+        northing_m: GEOTIFF_ORIGIN_M.1 + y,
+        pixel_m,
+    }
 }
 
 fn check_terrain(plan: &DatasetPlan, terrain: &Terrain) -> Result<()> {
