@@ -18,6 +18,9 @@ fn writes_the_report_and_refuses_to_replace_it() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("bench");
     let out_s = out.to_str().unwrap();
+    // Peers: our own VO file under another name (its row must equal VO's), and a missing one.
+    let peer_vo = format!("again={out_s}/runs/{{dataset}}-vo.tum");
+    let peer_absent = format!("absent={out_s}/nowhere/{{dataset}}.tum");
     let args = [
         "bench",
         "--out",
@@ -37,6 +40,10 @@ fn writes_the_report_and_refuses_to_replace_it() {
         "4",
         "--tables",
         "matching,localisation",
+        "--peer",
+        &peer_vo,
+        "--peer",
+        &peer_absent,
     ];
     let run = jointloc(&args);
     assert!(
@@ -74,6 +81,15 @@ fn writes_the_report_and_refuses_to_replace_it() {
         .unwrap();
     let rmse = vo["stats"]["rmse"].as_f64().unwrap();
     assert!(rmse > 0.0 && rmse < 1.0, "VO rmse {rmse}");
+    let rows = json["localisation"].as_array().unwrap();
+    let method = |m: &str| rows.iter().find(|r| r["method"] == m).unwrap();
+    let again = method("again (peer, Sim(3)-aligned)");
+    assert_eq!(again["stats"], vo["stats"]);
+    let absent = method("absent (peer, Sim(3)-aligned)");
+    assert!(
+        absent["failed"].as_str().unwrap().contains("no file"),
+        "{absent}"
+    );
     for f in [
         "crater-easy-s201-trajectories.svg",
         "crater-easy-s201-trajectories.map.png",
@@ -138,6 +154,8 @@ fn bad_options_are_clear_errors() {
         (vec!["--length-m", "5"], "--length-m"),
         (vec!["--replay-speed", "0"], "--replay-speed"),
         (vec!["--pairs", "0"], "--pairs"),
+        (vec!["--peer", "orbslam"], "NAME=PATTERN"),
+        (vec!["--peer", "orbslam=fixed.tum"], "{dataset}"),
     ] {
         let mut a = vec!["bench", "--out", out];
         a.extend(args);

@@ -6,7 +6,7 @@ use std::path::Path;
 use jointloc_eval::AlignMode;
 
 use super::dataset_figures::figures_for;
-use super::exec::Runner;
+use super::exec::{Finished, Runner};
 use super::flights::{jointloc_run, loc_row};
 use super::metrics;
 use super::plan::Plan;
@@ -94,6 +94,30 @@ pub(super) fn localisation_rows(
         None,
     );
     rep.localisation.push(row);
+    // A user's own baselines (ORB-SLAM2/3 …), Sim(3)-aligned as VO.
+    for (name, pattern) in &plan.peers {
+        let path = std::path::PathBuf::from(pattern.replace("{dataset}", &d.name()));
+        let given = Finished {
+            command: format!("--peer {name}={}", path.display()),
+            wall_s: 0.0,
+            outcome: if path.is_file() {
+                Ok(())
+            } else {
+                Err(format!("no file {}", path.display()))
+            },
+        };
+        let (mut row, _) = loc_row(
+            d,
+            format!("{name} (peer, Sim(3)-aligned)"),
+            &given,
+            &path,
+            AlignMode::Sim3,
+            false,
+            None,
+        );
+        row.hz = None;
+        rep.localisation.push(row);
+    }
     // Absolute only: 2-D error of the fixes.
     let fixes = out.join("runs").join(format!("{}-absloc.txt", d.name()));
     let json = out.join("runs").join(format!("{}-absloc.json", d.name()));

@@ -67,6 +67,11 @@ pub struct Args {
     /// (module timing and figures come with localisation).
     #[arg(long, value_delimiter = ',', default_values_t = TABLES.map(String::from))]
     tables: Vec<String>,
+    /// An external trajectory to put beside ours, as `NAME=PATTERN`: the TUM file of each
+    /// dataset, `{dataset}` standing for its name (`crater-easy-s201`), e.g.
+    /// `orbslam3=runs/orbslam3/{dataset}.tum`. Sim(3)-aligned like the VO rows. Repeatable.
+    #[arg(long, value_name = "NAME=PATTERN")]
+    peer: Vec<String>,
     /// Replace an existing report in OUT.
     #[arg(long)]
     pub(super) force: bool,
@@ -93,6 +98,8 @@ pub(super) struct Plan {
     /// Real-time rows: replay speed, × the camera rate.
     pub(super) replay_speed: f64,
     pub(super) tables: Vec<String>,
+    /// External trajectories: (name, file pattern with `{dataset}`).
+    pub(super) peers: Vec<(String, String)>,
 }
 
 impl Plan {
@@ -142,6 +149,18 @@ impl Plan {
                 bail!("unknown table {t:?} ({})", TABLES.join(", "));
             }
         }
+        let mut peers = Vec::new();
+        for p in &a.peer {
+            let Some((name, pattern)) = p.split_once('=') else {
+                bail!("--peer {p:?}: expected NAME=PATTERN, e.g. orbslam3=runs/{{dataset}}.tum");
+            };
+            if name.trim().is_empty() || !pattern.contains("{dataset}") {
+                bail!(
+                    "--peer {p:?}: needs a name and a file pattern with {{dataset}} (one file per dataset)"
+                );
+            }
+            peers.push((name.trim().to_string(), pattern.to_string()));
+        }
         let length_m = a.length_m.unwrap_or(if a.quick { 60.0 } else { 150.0 });
         if !(length_m.is_finite() && length_m >= 20.0) {
             bail!("--length-m must be at least 20");
@@ -158,6 +177,7 @@ impl Plan {
             abs_every: a.abs_every,
             replay_speed: a.replay_speed,
             tables: a.tables.clone(),
+            peers,
         })
     }
 }
