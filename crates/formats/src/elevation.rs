@@ -130,6 +130,36 @@ impl ElevationModel {
     }
 }
 
+/// Heights (m) as 16-bit values with their `(offset_m, scale_m)`: millimetre steps unless the
+/// relief needs coarser ones to fit 16 bits.
+pub fn quantise_heights(metres: &[f64]) -> (f64, f64, Vec<u16>) {
+    let lo = metres.iter().copied().fold(f64::INFINITY, f64::min);
+    let hi = metres.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+    let scale_m = ((hi - lo) / 65535.0).max(0.001);
+    let offset_m = (lo / 0.001).floor() * 0.001;
+    let data = metres
+        .iter()
+        .map(|&m| ((m - offset_m) / scale_m).round().clamp(0.0, 65535.0) as u16)
+        .collect();
+    (offset_m, scale_m, data)
+}
+
+/// Writes an 8-bit grey PNG (maps, tiles, frames).
+pub fn write_grey_png(path: &Path, grid: &Grid<u8>) -> Result<()> {
+    image::save_buffer_with_format(
+        path,
+        &grid.data,
+        grid.width as u32,
+        grid.height as u32,
+        image::ExtendedColorType::L8,
+        image::ImageFormat::Png,
+    )
+    .map_err(|e| match e {
+        image::ImageError::IoError(source) => FormatError::io(path, source),
+        other => FormatError::invalid(path, other.to_string()),
+    })
+}
+
 /// Writes the 16-bit grey PNG of an elevation model (the values, before `offset_m` and
 /// `scale_m`).
 pub fn write_elevation_png(path: &Path, grid: &Grid<u16>) -> Result<()> {

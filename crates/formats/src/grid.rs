@@ -30,6 +30,19 @@ impl<T: Copy> Grid<T> {
     pub fn at_mut(&mut self, col: usize, row: usize) -> &mut T {
         &mut self.data[row * self.width + col]
     }
+
+    /// A copy of the `width × height` window at top-left `(x, y)` (must lie inside).
+    pub fn window(&self, x: usize, y: usize, width: usize, height: usize) -> Self {
+        let mut data = Vec::with_capacity(width * height);
+        for r in y..y + height {
+            data.extend_from_slice(&self.data[r * self.width + x..r * self.width + x + width]);
+        }
+        Self {
+            width,
+            height,
+            data,
+        }
+    }
 }
 
 impl Grid<f32> {
@@ -44,5 +57,20 @@ impl Grid<f32> {
         let top = self.at(c0, r0) * (1.0 - fc) + self.at(c1, r0) * fc;
         let bottom = self.at(c0, r1) * (1.0 - fc) + self.at(c1, r1) * fc;
         top * (1.0 - fr) + bottom * fr
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn window_copies_the_rectangle() {
+        let mut g = Grid::filled(5, 4, 0u8);
+        for (k, v) in g.data.iter_mut().enumerate() {
+            *v = k as u8;
+        }
+        let c = g.window(1, 2, 3, 2);
+        assert_eq!(c.data, vec![11, 12, 13, 16, 17, 18]);
     }
 }

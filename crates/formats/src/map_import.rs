@@ -15,7 +15,7 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
-use crate::elevation::{ElevationInfo, write_elevation_png};
+use crate::elevation::{ElevationInfo, quantise_heights, write_elevation_png, write_grey_png};
 use crate::error::{FormatError, Result};
 use crate::geotiff::{GeoRaster, Samples, read_geotiff};
 use crate::grid::Grid;
@@ -124,11 +124,16 @@ pub fn import_map(
         height: h as usize,
         data: pixels,
     };
-    write_grey(&out.join(&map.image), &grid)?;
+    write_grey_png(&out.join(&map.image), &grid)?;
     let tiles = map.tile_list();
     for tile in &tiles {
-        let window = window(&grid, tile.x, tile.y, tile.width, tile.height);
-        write_grey(&tiles_dir.join(tile.file_name()), &window)?;
+        let window = grid.window(
+            tile.x as usize,
+            tile.y as usize,
+            tile.width as usize,
+            tile.height as usize,
+        );
+        write_grey_png(&tiles_dir.join(tile.file_name()), &window)?;
     }
     let mut dem_nodata_posts = 0;
     if let Some((info, posts, filled)) = dem {
@@ -178,15 +183,15 @@ fn is_nodata(v: f64, nodata: Option<f64>) -> bool {
 
 /// 8-bit grey pixels of the orthoimage and the count of nodata pixels.
 fn to_grey(r: &GeoRaster) -> (Vec<u8>, usize) {
-    let n = r.width * r.height;
-    let nodata = (0..n)
-        .filter(|&i| is_nodata(r.samples.get(i), r.nodata))
-        .count();
     if let Samples::U8(v) = &r.samples
         && r.nodata.is_none()
     {
         return (v.clone(), 0);
     }
+    let n = r.width * r.height;
+    let nodata = (0..n)
+        .filter(|&i| is_nodata(r.samples.get(i), r.nodata))
+        .count();
     // Linear stretch between the 0.1 % and 99.9 % quantiles of the valid pixels (a sample
     // of at most 1 M of them).
     let step = (n / 1_000_000).max(1);
@@ -246,15 +251,7 @@ fn import_dem(
         ));
     }
     fill_nodata(&mut metres, &mut valid, w, h);
-    let lo = metres.iter().copied().fold(f64::INFINITY, f64::min);
-    let hi = metres.iter().copied().fold(f64::NEG_INFINITY, f64::max);
-    // Millimetre steps unless the relief needs coarser ones to fit 16 bits.
-    let scale_m = ((hi - lo) / 65535.0).max(0.001);
-    let offset_m = (lo / 0.001).floor() * 0.001;
-    let data = metres
-        .iter()
-        .map(|&m| ((m - offset_m) / scale_m).round().clamp(0.0, 65535.0) as u16)
-        .collect();
+    let (offset_m, scale_m, data) = quantise_heights(&metres);
     let (o, d) = (ortho.transform, dem.transform);
     let info = ElevationInfo {
         image: "elevation.png".into(),
@@ -317,29 +314,4 @@ fn fill_nodata(v: &mut [f64], valid: &mut [bool], w: usize, h: usize) {
     };
     pass(v, valid, w, 1, h, w);
     pass(v, valid, h, w, w, 1);
-}
-
-fn window(g: &Grid<u8>, x: u32, y: u32, w: u32, h: u32) -> Grid<u8> {
-    let (x, y, w, h) = (x as usize, y as usize, w as usize, h as usize);
-    let mut data = Vec::with_capacity(w * h);
-    for r in y..y + h {
-        data.extend_from_slice(&g.data[r * g.width + x..r * g.width + x + w]);
-    }
-    Grid {
-        width: w,
-        height: h,
-        data,
-    }
-}
-
-fn write_grey(path: &Path, g: &Grid<u8>) -> Result<()> {
-    image::save_buffer_with_format(
-        path,
-        &g.data,
-        g.width as u32,
-        g.height as u32,
-        image::ExtendedColorType::L8,
-        image::ImageFormat::Png,
-    )
-    .map_err(|e| FormatError::invalid(path, format!("cannot write the PNG: {e}")))
 }

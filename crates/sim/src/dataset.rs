@@ -32,7 +32,7 @@ use serde::Serialize;
 
 use jointloc_formats::Grid;
 use jointloc_formats::camera_yaml::write_camera_yaml;
-use jointloc_formats::elevation::write_elevation_png;
+use jointloc_formats::elevation::{write_elevation_png, write_grey_png};
 use jointloc_formats::geotiff::{GeoTransform, Samples, write_mars_geotiff};
 use jointloc_formats::map_toml::{MapInfo, SceneInfo, SunInfo, covered_length, tile_stride};
 use jointloc_formats::sequence::{FrameRecord, write_sequence};
@@ -41,7 +41,7 @@ use crate::dem::{Heights, simulate_dem};
 use crate::error::{Result, SimError};
 use crate::regional::{BLEND_BAND_M, Patch, composite, pixel_heights};
 use crate::render::UavRenderer;
-use crate::satellite::{crop, downsample_mean};
+use crate::satellite::downsample_mean;
 use crate::sensor::expose;
 use crate::shading::{Sun, shade};
 use crate::terrain::{FeatureLayout, Terrain, TerrainConfig, TerrainExtent, generate_terrain_with};
@@ -371,8 +371,7 @@ pub fn write_dataset(
             )?;
         }
         tiles.par_iter().try_for_each(|tile| {
-            let window = crop(
-                &image,
+            let window = image.window(
                 tile.x as usize,
                 tile.y as usize,
                 tile.width as usize,
@@ -627,18 +626,7 @@ fn write_file(path: &Path, bytes: &[u8]) -> Result<()> {
 
 /// Writes an 8-bit grey PNG.
 pub fn write_png(path: &Path, image: &Grid<u8>) -> Result<()> {
-    image::save_buffer_with_format(
-        path,
-        &image.data,
-        image.width as u32,
-        image.height as u32,
-        image::ExtendedColorType::L8,
-        image::ImageFormat::Png,
-    )
-    .map_err(|e| SimError::Image {
-        path: path.to_path_buf(),
-        message: e.to_string(),
-    })
+    Ok(write_grey_png(path, image)?)
 }
 
 #[cfg(test)]

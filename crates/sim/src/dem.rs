@@ -13,9 +13,11 @@ use rand_distr::{Distribution, Normal};
 use serde::{Deserialize, Serialize};
 
 use crate::error::{Result, SimError};
+use crate::sensor::{gaussian_blur, gaussian_kernel};
 use crate::terrain::Terrain;
 use jointloc_formats::ElevationInfo;
 use jointloc_formats::Grid;
+use jointloc_formats::elevation::quantise_heights;
 
 /// Settings of the simulated DEM.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -150,22 +152,21 @@ pub fn simulate_dem(
         }
     }
     if cfg.smoothing_posts > 0.0 {
-        means = gaussian_blur(&means, pw, ph, cfg.smoothing_posts).0;
+        means = blurred(&means, pw, ph, cfg.smoothing_posts);
     }
     if cfg.noise_correlation_posts > 0.0 {
-        let (blurred, gain) = gaussian_blur(&errors, pw, ph, cfg.noise_correlation_posts);
-        errors = blurred.iter().map(|e| e / gain).collect();
+        // A 2-D blur shrinks the σ of white noise by Σw² of its 1-D kernel: undo that.
+        let gain: f64 = gaussian_kernel(cfg.noise_correlation_posts)
+            .iter()
+            .map(|&k| (k as f64).powi(2))
+            .sum();
+        errors = blurred(&errors, pw, ph, cfg.noise_correlation_posts)
+            .iter()
+            .map(|e| e / gain)
+            .collect();
     }
     let metres: Vec<f64> = means.iter().zip(&errors).map(|(m, e)| m + e).collect();
-    let lo = metres.iter().copied().fold(f64::INFINITY, f64::min);
-    let hi = metres.iter().copied().fold(f64::NEG_INFINITY, f64::max);
-    // Millimetre steps unless the relief needs coarser ones to fit 16 bits.
-    let scale_m = ((hi - lo) / 65535.0).max(0.001);
-    let offset_m = (lo / 0.001).floor() * 0.001;
-    let data = metres
-        .iter()
-        .map(|&m| ((m - offset_m) / scale_m).round().clamp(0.0, 65535.0) as u16)
-        .collect();
+    let (offset_m, scale_m, data) = quantise_heights(&metres);
     // Post (0, 0) covers cells [0, post_cells): its centre is half a block inside.
     let half = (post_cells as f64 - 1.0) / 2.0 * heights.cell_m;
     let info = ElevationInfo {
@@ -189,36 +190,18 @@ pub fn simulate_dem(
     ))
 }
 
-/// Separable Gaussian blur (σ in samples, edges clamped). Also returns how much it shrinks
-/// the σ of white noise (`√Σw²` over the 2-D kernel), to rescale blurred noise.
-fn gaussian_blur(data: &[f64], w: usize, h: usize, sigma: f64) -> (Vec<f64>, f64) {
-    let radius = (3.0 * sigma).ceil() as i64;
-    let mut kernel: Vec<f64> = (-radius..=radius)
-        .map(|k| (-0.5 * (k as f64 / sigma).powi(2)).exp())
-        .collect();
-    let total: f64 = kernel.iter().sum();
-    kernel.iter_mut().for_each(|k| *k /= total);
-    let gain = kernel.iter().map(|k| k * k).sum::<f64>();
-    let pass = |src: &[f64], along_x: bool| -> Vec<f64> {
-        let mut out = vec![0.0; src.len()];
-        for r in 0..h {
-            for c in 0..w {
-                let mut acc = 0.0;
-                for (k, wk) in kernel.iter().enumerate() {
-                    let o = k as i64 - radius;
-                    let (cc, rr) = if along_x {
-                        ((c as i64 + o).clamp(0, w as i64 - 1) as usize, r)
-                    } else {
-                        (c, (r as i64 + o).clamp(0, h as i64 - 1) as usize)
-                    };
-                    acc += wk * src[rr * w + cc];
-                }
-                out[r * w + c] = acc;
-            }
-        }
-        out
+/// `values` (a `w × h` grid) blurred by a Gaussian of σ samples, edges clamped.
+fn blurred(values: &[f64], w: usize, h: usize, sigma: f64) -> Vec<f64> {
+    let grid = Grid {
+        width: w,
+        height: h,
+        data: values.iter().map(|&v| v as f32).collect(),
     };
-    (pass(&pass(data, true), false), gain)
+    gaussian_blur(&grid, sigma)
+        .data
+        .iter()
+        .map(|&v| v as f64)
+        .collect()
 }
 
 #[cfg(test)]

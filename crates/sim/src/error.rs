@@ -18,9 +18,6 @@ pub enum SimError {
         path: PathBuf,
         source: std::io::Error,
     },
-    /// An image could not be encoded or written.
-    #[error("{path}: {message}")]
-    Image { path: PathBuf, message: String },
     /// The configuration file (`sim.toml`) could not be parsed.
     #[error("{path}:{line}: {message}")]
     Parse {

@@ -207,19 +207,6 @@ pub fn downsample_mean(radiance: &Grid<f32>, factor: usize) -> Result<Grid<f32>>
     Ok(out)
 }
 
-/// Copies the `width × height` window at top-left `(x, y)` (must lie inside).
-pub fn crop(image: &Grid<u8>, x: usize, y: usize, width: usize, height: usize) -> Grid<u8> {
-    let mut data = Vec::with_capacity(width * height);
-    for r in y..y + height {
-        data.extend_from_slice(&image.data[r * image.width + x..r * image.width + x + width]);
-    }
-    Grid {
-        width,
-        height,
-        data,
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -248,15 +235,5 @@ mod tests {
         assert_eq!(d.at(0, 0), (0.0 + 1.0 + 6.0 + 7.0) / 4.0);
         assert_eq!(d.at(2, 1), (16.0 + 17.0 + 22.0 + 23.0) / 4.0);
         assert!(downsample_mean(&g, 4).is_err());
-    }
-
-    #[test]
-    fn crop_copies_the_window() {
-        let mut g = Grid::filled(5, 4, 0u8);
-        for (k, v) in g.data.iter_mut().enumerate() {
-            *v = k as u8;
-        }
-        let c = crop(&g, 1, 2, 3, 2);
-        assert_eq!(c.data, vec![11, 12, 13, 16, 17, 18]);
     }
 }

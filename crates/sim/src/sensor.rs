@@ -176,17 +176,24 @@ pub fn expose(radiance: &Grid<f32>, cfg: &SensorConfig, exposure: f64, seed: u64
     out
 }
 
-/// Separable Gaussian blur with clamped borders; σ ≤ 0 returns a copy.
-pub fn gaussian_blur(image: &Grid<f32>, sigma: f64) -> Grid<f32> {
-    if sigma <= 0.0 || image.width == 0 || image.height == 0 {
-        return image.clone();
-    }
+/// The normalised 1-D Gaussian kernel of σ > 0 samples, 3σ to each side.
+pub fn gaussian_kernel(sigma: f64) -> Vec<f32> {
     let radius = (3.0 * sigma).ceil() as isize;
     let mut kernel: Vec<f32> = (-radius..=radius)
         .map(|k| (-0.5 * (k as f64 / sigma).powi(2)).exp() as f32)
         .collect();
     let sum: f32 = kernel.iter().sum();
     kernel.iter_mut().for_each(|k| *k /= sum);
+    kernel
+}
+
+/// Separable Gaussian blur with clamped borders; σ ≤ 0 returns a copy.
+pub fn gaussian_blur(image: &Grid<f32>, sigma: f64) -> Grid<f32> {
+    if sigma <= 0.0 || image.width == 0 || image.height == 0 {
+        return image.clone();
+    }
+    let kernel = gaussian_kernel(sigma);
+    let radius = (kernel.len() / 2) as isize;
     let (w, h) = (image.width, image.height);
     let clamp = |i: isize, n: usize| i.clamp(0, n as isize - 1) as usize;
     let mut tmp = Grid::filled(w, h, 0.0f32);
