@@ -147,6 +147,11 @@ macro_rules! rigid_pose {
                 self.0.translation.vector
             }
 
+            /// The same transform followed by a shift of `t` (its rotation unchanged).
+            pub fn translated(&self, t: Vector3<f64>) -> Self {
+                Self::from_rotation_translation(self.rotation(), self.translation() + t)
+            }
+
             /// Applies the transform to a point.
             pub fn transform_point(&self, p: &Point3<f64>) -> Point3<f64> {
                 self.0.transform_point(p)

@@ -9,7 +9,6 @@ use jointloc_formats::outputs::{
     OnlineFrame, OnlineStatus, OutputCrs, Summary, TerrainSummary, TimingSummary, write_fixes,
     write_json, write_online_tum,
 };
-use jointloc_geometry::CameraToWorld;
 use jointloc_geometry::trajectory::Trajectory;
 use jointloc_slam::system::median;
 use nalgebra::Vector3;
@@ -44,19 +43,16 @@ impl Outputs {
             return;
         }
         let shift = Vector3::new(crs.easting_m, crs.northing_m, 0.0);
-        let moved = |p: &CameraToWorld| {
-            CameraToWorld::from_rotation_translation(p.rotation(), p.translation() + shift)
-        };
         for f in &mut self.online {
             if let OnlineStatus::World(p) = &mut f.status {
-                *p = moved(p);
+                *p = p.translated(shift);
             }
         }
         for t in [&mut self.frames, &mut self.keyframes]
             .into_iter()
             .flatten()
         {
-            t.poses.iter_mut().for_each(|p| *p = moved(p));
+            t.poses.iter_mut().for_each(|p| *p = p.translated(shift));
         }
         for f in &mut self.fixes {
             f.position[0] += crs.easting_m;

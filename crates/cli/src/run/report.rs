@@ -87,12 +87,7 @@ pub(super) fn evaluate_against_ground_truth(
     // Local ground truth against outputs in the map's CRS: shifted the same way.
     if let Some(crs) = &outputs.summary.output_crs {
         let shift = nalgebra::Vector3::new(crs.easting_m, crs.northing_m, 0.0);
-        for p in &mut gt.poses {
-            *p = jointloc_geometry::CameraToWorld::from_rotation_translation(
-                p.rotation(),
-                p.translation() + shift,
-            );
-        }
+        gt.poses.iter_mut().for_each(|p| *p = p.translated(shift));
     }
     let no_alignment = EvalConfig {
         align: AlignMode::None,
