@@ -49,6 +49,20 @@ pub enum Samples {
 }
 
 impl Samples {
+    /// Number of values.
+    pub fn len(&self) -> usize {
+        match self {
+            Samples::U8(v) => v.len(),
+            Samples::U16(v) => v.len(),
+            Samples::F32(v) => v.len(),
+        }
+    }
+
+    /// True when there is no value.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
     /// Value `i` as f64.
     #[inline]
     pub fn get(&self, i: usize) -> f64 {
@@ -158,11 +172,7 @@ pub fn read_geotiff(path: &Path) -> Result<GeoRaster> {
         DecodingResult::F64(v) => Samples::F32(v.into_iter().map(|x| x as f32).collect()),
         _ => return Err(bad("unsupported sample type: use 8/16-bit or float".into())),
     };
-    let n = match &samples {
-        Samples::U8(v) => v.len(),
-        Samples::U16(v) => v.len(),
-        Samples::F32(v) => v.len(),
-    };
+    let n = samples.len();
     if n != w as usize * h as usize {
         return Err(bad(format!("decoded {n} samples for {w} × {h} pixels")));
     }

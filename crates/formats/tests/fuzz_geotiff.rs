@@ -5,24 +5,17 @@
 //!
 //! Cases: `JOINTLOC_FUZZ_CASES` (default 500), seed `JOINTLOC_FUZZ_SEED` (docs/testing.md).
 
+mod common;
+
 use std::path::Path;
 
-use jointloc_formats::geotiff::{Samples, read_geotiff};
+use jointloc_formats::geotiff::read_geotiff;
 use proptest::prelude::*;
 use proptest::sample::Index;
-use proptest::test_runner::{Config, RngSeed, TestRunner};
 use tiff::encoder::{TiffEncoder, colortype};
 use tiff::tags::Tag;
 
-fn runner() -> TestRunner {
-    let env = |name: &str| std::env::var(name).ok().and_then(|v| v.parse::<u64>().ok());
-    TestRunner::new(Config {
-        cases: env("JOINTLOC_FUZZ_CASES").map_or(500, |n| n as u32),
-        rng_seed: RngSeed::Fixed(env("JOINTLOC_FUZZ_SEED").unwrap_or(0)),
-        failure_persistence: None,
-        ..Config::default()
-    })
-}
+use common::{fuzz, runner};
 
 /// A 24 × 16 8-bit GeoTIFF: tie point + pixel scale, UTM 33N GeoKeys, a citation, nodata.
 fn valid_geotiff() -> Vec<u8> {
@@ -57,11 +50,7 @@ fn read(dir: &Path, bytes: &[u8]) -> Result<(), String> {
     std::fs::write(&path, bytes).unwrap();
     match read_geotiff(&path) {
         Ok(r) => {
-            let n = match &r.samples {
-                Samples::U8(v) => v.len(),
-                Samples::U16(v) => v.len(),
-                Samples::F32(v) => v.len(),
-            };
+            let n = r.samples.len();
             if n != r.width * r.height {
                 return Err(format!("{} samples for {} × {}", n, r.width, r.height));
             }
@@ -127,9 +116,7 @@ fn fuzz_geotiff_mutations_never_panic() {
             read(dir.path(), &b).map_err(TestCaseError::fail)
         })
         .unwrap_or_else(|e| panic!("{e}"));
-    runner()
-        .run(&prop::collection::vec(any::<u8>(), 0..512), |b| {
-            read(dir.path(), &b).map_err(TestCaseError::fail)
-        })
-        .unwrap_or_else(|e| panic!("{e}"));
+    fuzz(prop::collection::vec(any::<u8>(), 0..512), |b| {
+        read(dir.path(), b)
+    });
 }

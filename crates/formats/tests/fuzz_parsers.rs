@@ -9,6 +9,8 @@
 //! is `JOINTLOC_FUZZ_CASES=100000 cargo test --workspace fuzz` (see docs/testing.md), with
 //! `JOINTLOC_FUZZ_SEED` to explore other inputs.
 
+mod common;
+
 use std::path::{Path, PathBuf};
 
 use jointloc_formats::outputs::{
@@ -22,26 +24,8 @@ use jointloc_formats::{
 use jointloc_geometry::{CameraToWorld, PinholeCamera, RadTan};
 use proptest::prelude::*;
 use proptest::sample::Index;
-use proptest::test_runner::{Config, RngSeed, TestRunner};
 
-fn runner() -> TestRunner {
-    let env = |name: &str| std::env::var(name).ok().and_then(|v| v.parse::<u64>().ok());
-    TestRunner::new(Config {
-        cases: env("JOINTLOC_FUZZ_CASES").map_or(500, |n| n as u32),
-        rng_seed: RngSeed::Fixed(env("JOINTLOC_FUZZ_SEED").unwrap_or(0)),
-        failure_persistence: None,
-        ..Config::default()
-    })
-}
-
-/// Runs `check` on bytes from `strategy`; a failure (or panic) prints the shrunk input.
-fn fuzz(strategy: impl Strategy<Value = Vec<u8>>, check: impl Fn(&[u8]) -> Result<(), String>) {
-    runner()
-        .run(&strategy, |bytes| {
-            check(&bytes).map_err(TestCaseError::fail)
-        })
-        .unwrap_or_else(|e| panic!("{e}"));
-}
+use common::{fuzz, runner};
 
 /// Numbers and words that break naive parsers.
 const HOSTILE: &[&str] = &[
