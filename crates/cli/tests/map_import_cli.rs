@@ -5,7 +5,7 @@
 mod common;
 
 use std::path::{Path, PathBuf};
-use std::process::Command;
+use std::process::{Command, Output};
 use std::sync::OnceLock;
 
 use common::{jointloc, s};
@@ -50,49 +50,47 @@ fn python() -> &'static Path {
     })
 }
 
-fn script(action: &str, dir: &Path) {
+fn script(args: &[&str]) {
     let out = Command::new(python())
         .arg(Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/map_import.py"))
-        .arg(action)
-        .arg(dir)
+        .args(args)
         .output()
         .expect("python");
     assert!(
         out.status.success(),
-        "map_import.py {action}: {}{}",
+        "map_import.py {args:?}: {}{}",
         String::from_utf8_lossy(&out.stdout),
         String::from_utf8_lossy(&out.stderr)
     );
+}
+
+/// `jointloc map import --image IMAGE [--dem DEM] --out OUT EXTRA…`.
+fn import(image: &Path, dem: Option<&Path>, out: &Path, extra: &[&str]) -> Output {
+    let mut args = vec!["map", "import", "--image", s(image), "--out", s(out)];
+    if let Some(dem) = dem {
+        args.extend(["--dem", s(dem)]);
+    }
+    args.extend_from_slice(extra);
+    jointloc(&args)
 }
 
 #[test]
 fn geotiffs_written_by_gdal_import_exactly() {
     let tmp = tempfile::tempdir().unwrap();
     let d = tmp.path();
-    script("write", d);
-    let o = jointloc(&[
-        "map",
-        "import",
-        "--image",
-        s(&d.join("ortho.tif")),
-        "--dem",
-        s(&d.join("dtm.tif")),
-        "--out",
-        s(&d.join("utm")),
-    ]);
+    script(&["write", s(d)]);
+    let o = import(
+        &d.join("ortho.tif"),
+        Some(&d.join("dtm.tif")),
+        &d.join("utm"),
+        &[],
+    );
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     assert!(String::from_utf8_lossy(&o.stdout).contains("EPSG:32633"));
     assert!(String::from_utf8_lossy(&o.stderr).contains("nodata posts"));
-    let o = jointloc(&[
-        "map",
-        "import",
-        "--image",
-        s(&d.join("mars16.tif")),
-        "--out",
-        s(&d.join("mars")),
-    ]);
+    let o = import(&d.join("mars16.tif"), None, &d.join("mars"), &[]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    script("check", d);
+    script(&["check", s(d)]);
 
     // The map jointloc reads back.
     let map = jointloc_formats::MapInfo::read(&d.join("utm/map.toml")).unwrap();
@@ -112,14 +110,7 @@ fn geotiffs_written_by_gdal_import_exactly() {
 
     // Nothing is overwritten without --force; with it, the map is replaced.
     let before = std::fs::read(d.join("utm/map.toml")).unwrap();
-    let o = jointloc(&[
-        "map",
-        "import",
-        "--image",
-        s(&d.join("mars16.tif")),
-        "--out",
-        s(&d.join("utm")),
-    ]);
+    let o = import(&d.join("mars16.tif"), None, &d.join("utm"), &[]);
     assert!(!o.status.success());
     assert!(String::from_utf8_lossy(&o.stderr).contains("--force"));
     assert_eq!(std::fs::read(d.join("utm/map.toml")).unwrap(), before);
@@ -137,26 +128,12 @@ fn bad_geotiffs_are_errors_naming_the_file() {
     ];
     for (name, bytes, needle) in cases {
         std::fs::write(d.join(name), bytes).unwrap();
-        let o = jointloc(&[
-            "map",
-            "import",
-            "--image",
-            s(&d.join(name)),
-            "--out",
-            s(&d.join("o")),
-        ]);
+        let o = import(&d.join(name), None, &d.join("o"), &[]);
         assert!(!o.status.success(), "{name} was accepted");
         let e = String::from_utf8_lossy(&o.stderr);
         assert!(e.contains(name) && e.contains(needle), "{name}: {e}");
     }
-    let o = jointloc(&[
-        "map",
-        "import",
-        "--image",
-        s(&d.join("absent.tif")),
-        "--out",
-        s(&d.join("o")),
-    ]);
+    let o = import(&d.join("absent.tif"), None, &d.join("o"), &[]);
     assert!(String::from_utf8_lossy(&o.stderr).contains("absent.tif"));
     assert!(!d.join("o").join("map.toml").exists());
 }
@@ -200,34 +177,14 @@ fn a_flight_over_a_map_that_went_through_geotiff_flies_the_same_and_speaks_map_c
     copy_dir(&data.join("uav"), &imported.join("uav"));
     std::fs::copy(data.join("camera.yaml"), imported.join("camera.yaml")).unwrap();
     let (e0, n0) = (4_590_960.0, 1_093_031.0); // Jezero crater in Mars equirectangular metres
-    let out = Command::new(python())
-        .arg(Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/map_import.py"))
-        .args([
-            "togeotiff",
-            s(&data),
-            s(d),
-            &e0.to_string(),
-            &n0.to_string(),
-        ])
-        .output()
-        .expect("python");
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
+    let (e0_s, n0_s) = (e0.to_string(), n0.to_string());
+    script(&["togeotiff", s(&data), s(d), &e0_s, &n0_s]);
+    let o = import(
+        &d.join("satellite.tif"),
+        Some(&d.join("elevation.tif")),
+        &imported,
+        &["--dem-sigma-m", "0.05"],
     );
-    let o = jointloc(&[
-        "map",
-        "import",
-        "--image",
-        s(&d.join("satellite.tif")),
-        "--dem",
-        s(&d.join("elevation.tif")),
-        "--out",
-        s(&imported),
-        "--dem-sigma-m",
-        "0.05",
-    ]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
 
     // Same run, local frame: the same trajectory to 1 mm.
@@ -326,23 +283,20 @@ fn the_simulator_writes_geotiffs_that_gdal_places_on_mars_and_import_restores() 
         "4",
     ]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    script("checkmars", &d);
-    let o = jointloc(&[
-        "map",
-        "import",
-        "--image",
-        s(&d.join("satellite.tif")),
-        "--dem",
-        s(&d.join("elevation.tif")),
-        "--out",
-        s(&back),
-        "--tile-width",
-        "96",
-        "--tile-height",
-        "80",
-        "--dem-sigma-m",
-        "0.05",
-    ]);
+    script(&["checkmars", s(&d)]);
+    let o = import(
+        &d.join("satellite.tif"),
+        Some(&d.join("elevation.tif")),
+        &back,
+        &[
+            "--tile-width",
+            "96",
+            "--tile-height",
+            "80",
+            "--dem-sigma-m",
+            "0.05",
+        ],
+    );
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let (a, b) = (
         jointloc_formats::MapInfo::read(&d.join("map.toml")).unwrap(),

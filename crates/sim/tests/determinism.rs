@@ -19,13 +19,7 @@ fn small(seed: u64, kind: TerrainKind) -> SimConfig {
         ..Default::default()
     };
     cfg.trajectory.length_m = 2.0;
-    cfg.camera.width = 160;
-    cfg.camera.height = 120;
-    cfg.camera.fx = 160.0;
-    cfg.camera.fy = 160.0;
-    cfg.camera.cx = 79.5;
-    cfg.camera.cy = 59.5;
-    cfg.margin_m = 6.0;
+    common::small_camera(&mut cfg);
     cfg
 }
 

@@ -1,4 +1,5 @@
-//! Readers for the files a dataset holds, written independently of the writer's code paths.
+//! Readers for the files a dataset holds, written independently of the writer's code paths,
+//! and the small camera of the fast tests.
 
 #![allow(dead_code)]
 
@@ -46,4 +47,15 @@ pub fn read_grey(path: &Path) -> (usize, usize, Vec<u8>) {
     assert_eq!(img.color(), image::ColorType::L8, "{}", path.display());
     let img = img.to_luma8();
     (img.width() as usize, img.height() as usize, img.into_raw())
+}
+
+/// A 160 × 120 camera at f = 160 px and a 6 m margin: datasets that render in seconds.
+pub fn small_camera(cfg: &mut jointloc_sim::SimConfig) {
+    cfg.camera.width = 160;
+    cfg.camera.height = 120;
+    cfg.camera.fx = 160.0;
+    cfg.camera.fy = 160.0;
+    cfg.camera.cx = 79.5;
+    cfg.camera.cy = 59.5;
+    cfg.margin_m = 6.0;
 }
