@@ -143,6 +143,61 @@ fn writes_the_report_and_refuses_to_replace_it() {
 }
 
 #[test]
+fn envelope_table_flies_the_hirise_class_preset() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("bench");
+    let run = jointloc(&[
+        "bench",
+        "--out",
+        out.to_str().unwrap(),
+        "--quick",
+        "--terrains",
+        "crater",
+        "--length-m",
+        "20",
+        "--matcher",
+        "orb",
+        "--tables",
+        "envelope",
+        "--envelope-altitudes",
+        "30",
+        "--envelope-sun-changes",
+        "0",
+        "--envelope-map-size-m",
+        "100",
+    ]);
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    let md = std::fs::read_to_string(out.join("report.md")).unwrap();
+    assert!(md.contains("## 8. The Mars envelope"), "{md}");
+    assert!(md.contains("| 30 | 0 | 1 |"), "{md}");
+    assert!(md.contains("--difficulty mars --altitude 30"), "{md}");
+    // The other tables were not asked for: no dataset of theirs was made.
+    assert!(md.contains("## 2. Visual localisation (paper Table VI)\n\nNot run."));
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
+    let row = &json["envelope"][0];
+    assert!(row["failed"].is_null(), "{row}");
+    assert_eq!(row["map_size_m"].as_f64(), Some(100.0));
+    assert!(row["frames"].as_u64().unwrap() > 10, "{row}");
+    let geo = row["geo_referenced"].as_f64().unwrap();
+    assert!(geo > 0.3 && geo <= 1.0, "{row}");
+    assert!(row["fixes_found"].as_u64().unwrap() > 0, "{row}");
+    let right = row["fixes_right"].as_f64().unwrap();
+    assert!((0.0..=1.0).contains(&right), "{row}");
+    // A 25 cm/px map: the online error is within a few map pixels, world frame, no alignment.
+    let online = row["online"]["rmse"].as_f64().unwrap();
+    assert!(online > 0.0 && online < 1.0, "{row}");
+    assert!(
+        row["commands"][1].as_str().unwrap().contains("--start"),
+        "{row}"
+    );
+}
+
+#[test]
 fn bad_options_are_clear_errors() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().to_str().unwrap();
@@ -156,6 +211,12 @@ fn bad_options_are_clear_errors() {
         (vec!["--pairs", "0"], "--pairs"),
         (vec!["--peer", "orbslam"], "NAME=PATTERN"),
         (vec!["--peer", "orbslam=fixed.tum"], "{dataset}"),
+        (
+            vec!["--envelope-sun-changes", "200"],
+            "--envelope-sun-changes",
+        ),
+        (vec!["--envelope-altitudes", "0"], "--envelope-altitudes"),
+        (vec!["--envelope-map-size-m", "0"], "--envelope-map-size-m"),
     ] {
         let mut a = vec!["bench", "--out", out];
         a.extend(args);

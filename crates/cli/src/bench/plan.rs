@@ -14,7 +14,17 @@ const ALL_MATCHERS: [&str; 6] = [
     "superpoint-mnn",
 ];
 
-const TABLES: [&str; 5] = ["matching", "localisation", "fusion", "area", "confidence"];
+/// Tables `--tables` accepts; the envelope's 2 km maps make it opt-in.
+const TABLES: [&str; 6] = [
+    "matching",
+    "localisation",
+    "fusion",
+    "area",
+    "confidence",
+    "envelope",
+];
+/// Tables run by default.
+const DEFAULT_TABLES: [&str; 5] = ["matching", "localisation", "fusion", "area", "confidence"];
 
 #[derive(Debug, clap::Args)]
 pub struct Args {
@@ -64,9 +74,20 @@ pub struct Args {
     #[arg(long, value_name = "S", default_value_t = 1.0)]
     replay_speed: f64,
     /// Tables to produce, comma separated: matching, localisation, fusion, area, confidence
-    /// (module timing and figures come with localisation).
-    #[arg(long, value_delimiter = ',', default_values_t = TABLES.map(String::from))]
+    /// (module timing and figures come with localisation), and envelope (not by default: the
+    /// HiRISE-class preset at each altitude × sun change, see the `--envelope-*` options).
+    #[arg(long, value_delimiter = ',', default_values_t = DEFAULT_TABLES.map(String::from))]
     tables: Vec<String>,
+    /// Envelope table: flight altitudes, metres, comma separated.
+    #[arg(long, value_delimiter = ',', value_name = "M", default_values_t = [10.0, 50.0, 100.0, 200.0])]
+    envelope_altitudes: Vec<f64>,
+    /// Envelope table: changes of the sun's azimuth between map and flight, degrees (0–180).
+    #[arg(long, value_delimiter = ',', value_name = "DEG", default_values_t = [30.0, 90.0, 180.0])]
+    envelope_sun_changes: Vec<f64>,
+    /// Envelope table: side of the HiRISE-class map, metres (default 2000, the preset's; 500
+    /// with --quick).
+    #[arg(long, value_name = "M")]
+    envelope_map_size_m: Option<f64>,
     /// An external trajectory to put beside ours, as `NAME=PATTERN`: the TUM file of each
     /// dataset, `{dataset}` standing for its name (`crater-easy-s201`), e.g.
     /// `orbslam3=runs/orbslam3/{dataset}.tum`. Sim(3)-aligned like the VO rows. Repeatable.
@@ -100,6 +121,15 @@ pub(super) struct Plan {
     pub(super) tables: Vec<String>,
     /// External trajectories: (name, file pattern with `{dataset}`).
     pub(super) peers: Vec<(String, String)>,
+    pub(super) envelope: EnvelopePlan,
+}
+
+/// The flights of the envelope table: every altitude × sun change, per terrain and seed.
+#[derive(Debug, Clone)]
+pub(super) struct EnvelopePlan {
+    pub(super) altitudes_m: Vec<f64>,
+    pub(super) sun_changes_deg: Vec<f64>,
+    pub(super) map_size_m: f64,
 }
 
 impl Plan {
@@ -161,6 +191,28 @@ impl Plan {
             }
             peers.push((name.trim().to_string(), pattern.to_string()));
         }
+        let envelope = EnvelopePlan {
+            altitudes_m: a.envelope_altitudes.clone(),
+            sun_changes_deg: a.envelope_sun_changes.clone(),
+            map_size_m: a
+                .envelope_map_size_m
+                .unwrap_or(if a.quick { 500.0 } else { 2000.0 }),
+        };
+        // The simulator states its own limits; these are the ones that would only show up
+        // after the other tables have run.
+        if envelope
+            .altitudes_m
+            .iter()
+            .any(|v| !(v.is_finite() && *v > 0.0))
+        {
+            bail!("--envelope-altitudes must be positive numbers");
+        }
+        if (envelope.sun_changes_deg.iter()).any(|v| !(0.0..=180.0).contains(v)) {
+            bail!("--envelope-sun-changes must lie in 0–180 degrees");
+        }
+        if !(envelope.map_size_m.is_finite() && envelope.map_size_m > 0.0) {
+            bail!("--envelope-map-size-m must be a positive number");
+        }
         let length_m = a.length_m.unwrap_or(if a.quick { 60.0 } else { 150.0 });
         if !(length_m.is_finite() && length_m >= 20.0) {
             bail!("--length-m must be at least 20");
@@ -178,6 +230,7 @@ impl Plan {
             replay_speed: a.replay_speed,
             tables: a.tables.clone(),
             peers,
+            envelope,
         })
     }
 }

@@ -10,6 +10,7 @@ use jointloc_eval::Statistics;
 use jointloc_geometry::trajectory::Trajectory;
 use serde::Serialize;
 
+use super::envelope::{EnvelopeRow, envelope_md};
 use super::metrics::fmt_ms;
 use super::paths::PathNames;
 
@@ -96,6 +97,7 @@ pub struct Report {
     pub fusion_frequency: Vec<LocRow>,
     pub area_prediction: Vec<LocRow>,
     pub confidence: Vec<LocRow>,
+    pub envelope: Vec<EnvelopeRow>,
     pub figures: Vec<String>,
 }
 
@@ -114,6 +116,7 @@ impl Report {
             fusion_frequency: Vec::new(),
             area_prediction: Vec::new(),
             confidence: Vec::new(),
+            envelope: Vec::new(),
             figures: Vec::new(),
         }
     }
@@ -191,6 +194,7 @@ impl Report {
         for f in &self.figures {
             let _ = writeln!(s, "![{f}](figures/{f})\n");
         }
+        envelope_md(&mut s, &self.envelope);
         s
     }
 
