@@ -15,7 +15,7 @@ pub struct KeyframeDecisionConfig {
     /// has. With the paper's 10 a keyframe is inserted every ≈ 2.1 m instead of ≈ 0.9 m
     /// (≈ 1.4 m after keyframe culling), and the per-frame RPE is ≈ 30 % larger on every flight
     /// measured; Sim(3) APE mean 0.104 → 0.073 m on six development flights, 0.108 → 0.102 m
-    /// on ten fresh ones (docs/vo.md §5).
+    /// on eleven fresh ones (docs/vo.md §5).
     pub min_frames: usize,
     /// Insert as soon as the tracked points fall below this fraction of the reference
     /// keyframe's (ORB-SLAM2's monocular `thRefRatio`: 0.9; the paper's "90 %" rule).
