@@ -17,6 +17,35 @@ pub struct Correspondence {
     pub weight: f64,
     /// Index of the fix it comes from (a fix gives several correspondences).
     pub fix: usize,
+    /// How far its world point may be from the similarity's image of its SLAM point and
+    /// still be an inlier.
+    pub tolerance: Tolerance,
+}
+
+/// An inlier bound: an ellipsoid with the horizontal (x, y) and vertical (z) half-axes,
+/// metres. A fix's x, y is what a wrong match gets wrong; its z (elevation model + altimeter)
+/// and the x, y of the point above it (a nadir assumption) err with the altitude.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Tolerance {
+    pub horizontal_m: f64,
+    pub vertical_m: f64,
+}
+
+impl Tolerance {
+    /// A sphere of radius `r`.
+    pub fn sphere(r: f64) -> Self {
+        Self {
+            horizontal_m: r,
+            vertical_m: r,
+        }
+    }
+
+    /// Whether the residual `d` (world minus predicted) lies inside.
+    pub fn contains(&self, d: &nalgebra::Vector3<f64>) -> bool {
+        let h = (d.x * d.x + d.y * d.y) / (self.horizontal_m * self.horizontal_m);
+        let v = d.z * d.z / (self.vertical_m * self.vertical_m);
+        h + v <= 1.0
+    }
 }
 
 /// The fitted similarity and which fixes support it.
@@ -30,11 +59,10 @@ pub struct SlamToWorld {
 }
 
 /// RANSAC (seeded) over minimal sets of 3 correspondences from distinct fixes, scored by the
-/// summed weight of inliers within `threshold`, refined by weighted Umeyama on the inliers.
-/// `None` when no hypothesis has at least `min_fixes` inlier fixes.
+/// summed weight of inliers within their tolerances, refined by weighted Umeyama on the
+/// inliers. `None` when no hypothesis has at least `min_fixes` inlier fixes.
 pub fn fit(
     pairs: &[Correspondence],
-    threshold: f64,
     iterations: usize,
     min_fixes: usize,
     seed: u64,
@@ -48,7 +76,10 @@ pub fn fit(
         // A fix is an inlier when all its correspondences are.
         let mut ok = vec![true; n_fixes];
         for c in pairs {
-            if (s.transform_point(&c.slam) - c.world).norm() > threshold {
+            if !c
+                .tolerance
+                .contains(&(s.transform_point(&c.slam) - c.world))
+            {
                 ok[c.fix] = false;
             }
         }
@@ -161,6 +192,7 @@ mod tests {
                     world: p + shift,
                     weight: w,
                     fix: f,
+                    tolerance: Tolerance::sphere(2.0),
                 });
             }
         }
@@ -171,7 +203,7 @@ mod tests {
     fn recovers_the_similarity_despite_wrong_fixes() {
         for seed in 0..5 {
             let (p, wrong) = pairs(seed, 0.2, 0.3);
-            let fit = fit(&p, 2.0, 200, 2, seed).expect("fit");
+            let fit = fit(&p, 200, 2, seed).expect("fit");
             let t = truth();
             assert!(
                 (fit.sim3.scale / t.scale - 1.0).abs() < 0.01,
@@ -191,12 +223,43 @@ mod tests {
         }
     }
 
+    /// At altitude the point above a fix (a nadir assumption) is off by altitude × tilt:
+    /// with the bound widened for it the fix stays an inlier, and its x, y still gates a
+    /// wrong fix.
+    #[test]
+    fn a_wide_bound_keeps_tilted_nadir_pairs_and_still_drops_wrong_fixes() {
+        let (mut p, _) = pairs(3, 0.0, 0.05);
+        for c in p.iter_mut().filter(|c| c.weight < 0.5) {
+            // The camera pair: 1.5–4 m off sideways, as 100 m × 1–2° of tilt.
+            c.world.x += 1.5 + 2.5 * ((c.fix % 5) as f64 / 4.0);
+        }
+        let wrong = 7;
+        for c in p.iter_mut().filter(|c| c.fix == wrong) {
+            c.world.y += 3.0;
+        }
+        let strict = fit(&p, 200, 2, 0).expect("fit");
+        assert!(strict.inlier_fixes.len() < 20, "{:?}", strict.inlier_fixes);
+        for c in p.iter_mut() {
+            c.tolerance = if c.weight < 0.5 {
+                Tolerance::sphere(20.0)
+            } else {
+                Tolerance {
+                    horizontal_m: 2.0,
+                    vertical_m: 20.0,
+                }
+            };
+        }
+        let wide = fit(&p, 200, 2, 0).expect("fit");
+        assert_eq!(wide.inlier_fixes.len(), 29, "{:?}", wide.inlier_fixes);
+        assert!(!wide.inlier_fixes.contains(&wrong));
+    }
+
     #[test]
     fn too_few_fixes_give_nothing() {
         let (p, _) = pairs(1, 0.0, 0.0);
-        assert!(fit(&p[..2], 1.0, 50, 2, 0).is_none());
-        assert!(fit(&p[..4], 1.0, 50, 3, 0).is_none());
-        assert!(fit(&p[..4], 1.0, 50, 2, 0).is_some());
-        assert!(fit(&[], 1.0, 50, 2, 0).is_none());
+        assert!(fit(&p[..2], 50, 2, 0).is_none());
+        assert!(fit(&p[..4], 50, 3, 0).is_none());
+        assert!(fit(&p[..4], 50, 2, 0).is_some());
+        assert!(fit(&[], 50, 2, 0).is_none());
     }
 }

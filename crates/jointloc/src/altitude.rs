@@ -41,6 +41,11 @@ impl AltitudeFilter {
         self.window_s
     }
 
+    /// Sets the window (the readings already held are kept; the next push trims them).
+    pub fn set_window_s(&mut self, window_s: f64) {
+        self.window_s = window_s;
+    }
+
     /// Forgets every frame (tracking lost: the SLAM frame may change).
     pub fn clear(&mut self) {
         self.recent.clear();

@@ -9,6 +9,7 @@ use jointloc_geometry::{CameraToWorld, Sim3};
 use jointloc_slam::local_mapping::GroundModel;
 use jointloc_slam::map::KeyFrameId;
 
+use crate::alignment::Tolerance;
 use crate::error::Result;
 use crate::final_ba::{FinalBaStats, FinalTie, RefinedKeyFrames};
 use crate::ground::ElevationGround;
@@ -111,13 +112,24 @@ impl JointLoc {
     /// alignments, with every fix tied to a keyframe still in the map.
     fn refine_map(&self, aligner: &mut CentredAligner<'_>) -> Result<Option<RefinedKeyFrames>> {
         let mut ties = Vec::with_capacity(2 * self.ties.len());
+        let threshold = self.config.inlier_threshold_m;
+        let map = self.slam.map();
         for t in &self.ties {
+            // On a keyframe still in the map (one culled since hands its fixes on).
+            let mut t = t.clone();
+            t.refresh(map, self.fixes[t.record].timestamp);
+            let t = &t;
+            let loose = self.config.range_looseness(t.altitude);
             ties.push(FinalTie {
                 keyframe: t.keyframe,
                 point_in_camera: t.ground_in_kf,
                 world: self.corrected(&t.world_ground),
                 weight: t.weight,
                 sigma_scale: 1.0,
+                tolerance: Tolerance {
+                    horizontal_m: threshold,
+                    vertical_m: threshold * loose,
+                },
             });
             if self.config.nadir_sigma_scale > 0.0 {
                 ties.push(FinalTie {
@@ -125,7 +137,8 @@ impl JointLoc {
                     point_in_camera: t.centre_in_kf,
                     world: self.corrected(&t.world_camera),
                     weight: t.weight,
-                    sigma_scale: self.config.nadir_sigma_scale,
+                    sigma_scale: self.nadir_sigma_scale(t),
+                    tolerance: Tolerance::sphere(threshold * loose),
                 });
             }
         }
@@ -141,7 +154,6 @@ impl JointLoc {
             &self.config.final_ba,
             &mut |t| aligner.sim_at(t),
             &ties,
-            self.config.inlier_threshold_m,
             ground.as_ref().map(|g| g as &dyn GroundModel),
             !self.slam.retired_keyframes().is_empty(),
         )
@@ -219,7 +231,7 @@ impl JointLoc {
             .iter()
             .map(|tie| {
                 let mut tie = tie.clone();
-                tie.refresh(map);
+                tie.refresh(map, self.fixes[tie.record].timestamp);
                 (self.fixes[tie.record].timestamp, tie)
             })
             .collect();

@@ -28,6 +28,7 @@ use jointloc_slam::map::{KeyFrameId, Map};
 use nalgebra::{Isometry3, Point2, Point3, Translation3, UnitQuaternion};
 use serde::{Deserialize, Serialize};
 
+use crate::alignment::Tolerance;
 use crate::error::Result;
 
 /// Settings of the global bundle adjustment at the end (`[final_ba]`).
@@ -62,6 +63,9 @@ pub struct FinalTie {
     pub weight: f64,
     /// σ of this factor over `global_sigma` (the nadir factor's is smaller).
     pub sigma_scale: f64,
+    /// How far from the point through the local alignments the fix may be and still be
+    /// used (the alignment's inlier bound for this pair).
+    pub tolerance: Tolerance,
 }
 
 /// What the global BA did (a record of the run's summary, hence in `jointloc_formats`).
@@ -90,7 +94,7 @@ pub struct RefinedKeyFrames {
 
 /// Optimises `map` in the world frame. `sim_at(t)`: the SLAM→world similarity of the fixes
 /// nearest to time `t` (the local alignments). Fixes whose point lies farther than
-/// `inlier_threshold_m` from its fix through those alignments are left out (wrong fixes).
+/// its tolerance from its fix through those alignments are left out (wrong fixes).
 /// `None` when the map has fewer than two keyframes.
 #[allow(clippy::too_many_arguments)]
 pub fn refine(
@@ -100,7 +104,6 @@ pub fn refine(
     config: &FinalBaConfig,
     sim_at: &mut dyn FnMut(f64) -> Sim3,
     ties: &[FinalTie],
-    inlier_threshold_m: f64,
     ground: Option<&dyn GroundModel>,
     older_exist: bool,
 ) -> Result<Option<RefinedKeyFrames>> {
@@ -135,7 +138,7 @@ pub fn refine(
             .pose
             .inverse()
             .transform_point(&Point3::from(point_in_camera));
-        if (world_now - tie.world).norm() > inlier_threshold_m {
+        if !tie.tolerance.contains(&(world_now - tie.world)) {
             stats.factors_left_out += 1;
             continue;
         }
@@ -226,8 +229,8 @@ pub fn refine(
 impl RefinedKeyFrames {
     /// The world pose of a SLAM pose at time `t`, given the local alignment `s` at `t`, and
     /// the keyframe the SLAM expresses it through (`reference`, as ORB-SLAM2 saves frames):
-    /// its pose relative to that keyframe, in metres through `s`, on the refined keyframe.
-    /// Without a refined reference, relative to the refined keyframes around `t`,
+    /// its pose relative to that keyframe, in metres through `s`, on the refined keyframe,
+    /// when that keyframe is one of the two refined ones around `t`. Otherwise relative to the refined keyframes around `t`,
     /// interpolated between the two (translation linearly, rotation along the geodesic);
     /// before the first refined keyframe, when older ones were retired, the local alignment
     /// alone (the BA did not see them).
@@ -241,10 +244,20 @@ impl RefinedKeyFrames {
         let local = s.transform_pose(slam);
         let correction =
             |k: &Refined| -> Isometry3<f64> { k.world.0 * s.transform_pose(&k.slam).0.inverse() };
-        if let Some(k) = reference.and_then(|id| self.keyframes.iter().find(|k| k.id == id)) {
+        let after = self.keyframes.partition_point(|k| k.timestamp <= t);
+        // The reference keyframe only when it is one of the two refined keyframes around `t`:
+        // a frame whose own keyframe was culled is expressed through the end of the culling
+        // chain, which at altitude (few keyframes, many culled) can be 40 m away, and the
+        // refined keyframe's attitude error times that lever arm then lands on the frame.
+        let around = |i: usize| i + 1 == after || i == after;
+        if let Some((_, k)) = reference.and_then(|id| {
+            self.keyframes
+                .iter()
+                .enumerate()
+                .find(|(i, k)| k.id == id && around(*i))
+        }) {
             return CameraToWorld(correction(k) * local.0);
         }
-        let after = self.keyframes.partition_point(|k| k.timestamp <= t);
         let c = if after == 0 {
             if self.older_exist {
                 return local;
@@ -423,6 +436,7 @@ mod tests {
                     world,
                     weight: 1.0,
                     sigma_scale,
+                    tolerance: Tolerance::sphere(2.0),
                 });
             }
         }
@@ -456,7 +470,6 @@ mod tests {
                 &FinalBaConfig::default(),
                 &mut windowed,
                 &sc.ties,
-                2.0,
                 None,
                 false,
             )

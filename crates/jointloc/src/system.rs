@@ -328,7 +328,13 @@ impl JointLoc {
             self.altimeter.push((timestamp, alt));
         }
         match (r.pose, altitude) {
-            (Some(p), Some(alt)) => self.altitude.push(timestamp, p.centre(), alt),
+            (Some(p), Some(alt)) => {
+                // The altimeter's noise is a share of the range: average longer up high.
+                let loose = self.config.range_looseness(alt);
+                self.altitude
+                    .set_window_s(self.config.altitude_window_s * loose.sqrt());
+                self.altitude.push(timestamp, p.centre(), alt)
+            }
             (None, _) => self.altitude.clear(),
             _ => {}
         }
