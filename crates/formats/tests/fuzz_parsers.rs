@@ -21,7 +21,7 @@ use jointloc_formats::sequence::{FrameRecord, write_sequence};
 use jointloc_formats::{
     ElevationInfo, FormatError, MapInfo, Sequence, read_camera_yaml, write_camera_yaml,
 };
-use jointloc_geometry::{CameraToWorld, PinholeCamera, RadTan};
+use jointloc_geometry::{CameraToWorld, KannalaBrandt, PinholeCamera, RadTan};
 use proptest::prelude::*;
 use proptest::sample::Index;
 
@@ -268,40 +268,64 @@ fn hostile_tile_layouts_are_errors() {
     }
 }
 
-fn camera_seed(dir: &Path) -> Vec<u8> {
-    let cam = PinholeCamera {
+/// Seeds: a radial-tangential pinhole (ORB-SLAM2 layout) and a Kannala-Brandt fisheye
+/// (ORB-SLAM3 layout, `Camera.type` and `Camera1.*` keys).
+fn camera_seeds(dir: &Path) -> [Vec<u8>; 2] {
+    let pinhole = PinholeCamera {
         fx: 512.123456789,
         fy: 498.1,
         cx: 251.3,
         cy: 247.0,
         width: 640,
         height: 480,
-        distortion: Some(RadTan {
-            k1: -0.12,
-            k2: 0.031,
-            p1: 1e-4,
-            p2: -2.5e-5,
-            k3: 0.0,
-        }),
+        distortion: Some(
+            RadTan {
+                k1: -0.12,
+                k2: 0.031,
+                p1: 1e-4,
+                p2: -2.5e-5,
+                k3: 0.0,
+            }
+            .into(),
+        ),
     };
-    let path = dir.join("seed.yaml");
-    write_camera_yaml(&path, &cam, 5.0).unwrap();
-    std::fs::read(path).unwrap()
+    let fisheye = PinholeCamera::fisheye(
+        133.0,
+        640,
+        480,
+        KannalaBrandt {
+            k1: 0.0034823894022493434,
+            k2: 0.0007150348452162257,
+            k3: -0.0020532361418706202,
+            k4: 0.00020293673591811182,
+        },
+    )
+    .unwrap();
+    [pinhole, fisheye].map(|cam| {
+        let path = dir.join("seed.yaml");
+        write_camera_yaml(&path, &cam, 5.0).unwrap();
+        std::fs::read(path).unwrap()
+    })
 }
 
 #[test]
 fn fuzz_camera_yaml() {
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("fuzz-camera.yaml");
-    fuzz(inputs(camera_seed(dir.path())), |bytes| {
+    let [pinhole, fisheye] = camera_seeds(dir.path());
+    fuzz(prop_oneof![inputs(pinhole), inputs(fisheye)], |bytes| {
         std::fs::write(&path, bytes).unwrap();
         judge(read_camera_yaml(&path), "fuzz-camera.yaml", |c| {
             let k = &c.camera;
             [k.fx, k.fy, k.cx, k.cy, c.fps]
                 .iter()
                 .all(|v| v.is_finite())
+                && k.fx > 0.0
+                && k.fy > 0.0
                 && k.width >= 1
                 && k.height >= 1
+                && k.distortion
+                    .is_none_or(|d| d.coefficients().iter().all(|v| v.is_finite()))
         })
     });
 }

@@ -14,7 +14,7 @@ pub mod triangulation;
 pub mod two_view;
 pub mod umeyama;
 
-pub use camera::{PinholeCamera, RadTan};
+pub use camera::{Distortion, KannalaBrandt, PinholeCamera, RadTan};
 pub use error::{GeometryError, Result};
 pub use pose::{CameraToWorld, Sim3, WorldToCamera};
 pub use ransac::{Estimator, RansacConfig, RansacResult, ransac};

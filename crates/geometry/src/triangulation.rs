@@ -392,13 +392,16 @@ mod tests {
     #[test]
     fn reprojection_jacobian_matches_central_differences() {
         let distorted = PinholeCamera {
-            distortion: Some(RadTan {
-                k1: -0.2,
-                k2: 0.05,
-                p1: 1e-3,
-                p2: -5e-4,
-                k3: 0.0,
-            }),
+            distortion: Some(
+                RadTan {
+                    k1: -0.2,
+                    k2: 0.05,
+                    p1: 1e-3,
+                    p2: -5e-4,
+                    k3: 0.0,
+                }
+                .into(),
+            ),
             ..camera()
         };
         for cam in [camera(), distorted] {

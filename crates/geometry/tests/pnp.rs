@@ -3,7 +3,9 @@
 //! pixel noise and 30 % gross outliers.
 
 use jointloc_geometry::pnp::{PnpConfig, PnpResult, projection_pose_jacobian, solve_pnp_ransac};
-use jointloc_geometry::{GeometryError, PinholeCamera, RadTan, RansacConfig, WorldToCamera};
+use jointloc_geometry::{
+    GeometryError, KannalaBrandt, PinholeCamera, RadTan, RansacConfig, WorldToCamera,
+};
 use nalgebra::{Matrix6, Point2, Point3, UnitQuaternion, Vector3};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -163,16 +165,33 @@ fn accurate_pose_with_noise_and_outliers() {
 #[test]
 fn accurate_pose_with_radial_tangential_distortion() {
     let camera = PinholeCamera {
-        distortion: Some(RadTan {
-            k1: -0.28,
-            k2: 0.07,
-            p1: 2e-4,
-            p2: -1.5e-4,
-            k3: 0.01,
-        }),
+        distortion: Some(
+            RadTan {
+                k1: -0.28,
+                k2: 0.07,
+                p1: 2e-4,
+                p2: -1.5e-4,
+                k3: 0.01,
+            }
+            .into(),
+        ),
         ..PinholeCamera::ideal(500.0, 500, 500)
     };
     check_accuracy(&camera, "radtan");
+}
+
+#[test]
+fn accurate_pose_with_a_kannala_brandt_fisheye() {
+    // 133° × 100° on 640 × 480 (Ingenuity's navigation camera), TUM-VI's cam0 coefficients
+    // (ORB-SLAM3's TUM-VI.yaml); the corners are 83° off axis.
+    let lens = KannalaBrandt {
+        k1: 0.0034823894022493434,
+        k2: 0.0007150348452162257,
+        k3: -0.0020532361418706202,
+        k4: 0.00020293673591811182,
+    };
+    let camera = PinholeCamera::fisheye(133.0, 640, 480, lens).unwrap();
+    check_accuracy(&camera, "fisheye");
 }
 
 #[test]

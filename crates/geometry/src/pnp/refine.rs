@@ -232,13 +232,9 @@ pub(crate) fn squared_error(
         return f64::INFINITY;
     }
     let xn = Vector2::new(p.x / p.z, p.y / p.z);
-    let xd = match &camera.distortion {
-        Some(d) if !d.is_zero() => d.distort(&xn).0,
-        _ => xn,
-    };
-    let du = camera.fx * xd.x + camera.cx - uv.x;
-    let dv = camera.fy * xd.y + camera.cy - uv.y;
-    du * du + dv * dv
+    camera
+        .distort_to_pixel(&xn)
+        .map_or(f64::INFINITY, |q| (q - uv).norm_squared())
 }
 
 /// Validates lengths and finiteness of an observation set.
@@ -352,13 +348,16 @@ mod tests {
     fn cameras() -> [PinholeCamera; 2] {
         let ideal = PinholeCamera::ideal(500.0, 500, 500);
         let distorted = PinholeCamera {
-            distortion: Some(RadTan {
-                k1: -0.28,
-                k2: 0.07,
-                p1: 2e-4,
-                p2: -1.5e-4,
-                k3: 0.01,
-            }),
+            distortion: Some(
+                RadTan {
+                    k1: -0.28,
+                    k2: 0.07,
+                    p1: 2e-4,
+                    p2: -1.5e-4,
+                    k3: 0.01,
+                }
+                .into(),
+            ),
             ..ideal
         };
         [ideal, distorted]
