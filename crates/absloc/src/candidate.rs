@@ -12,7 +12,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::error::Result;
 use crate::tiles::MapTile;
-use crate::warp::{NormalisedFrame, normalise};
+use crate::warp::{Lens, NormalisedFrame, normalise_lens};
 
 /// Acceptance rules for a tile's homography.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -32,6 +32,11 @@ pub struct AcceptConfig {
     /// Keypoints closer than this (frame pixels) to the frame border are dropped: after
     /// rotation they sit next to the fill and their descriptors see it.
     pub border_margin_px: f64,
+    /// A camera with a lens model (a fisheye) is undistorted into the normalised view up to
+    /// this angle off the optical axis, degrees: the undistorted periphery grows as `tan θ`
+    /// (a 133° fisheye at 66.5° spans 2.3× its focal length either side) while the map tiles
+    /// are cut to a pinhole's footprint. No effect on a camera without distortion.
+    pub max_off_axis_deg: f64,
 }
 
 impl Default for AcceptConfig {
@@ -42,6 +47,7 @@ impl Default for AcceptConfig {
             max_log_scale_error: 0.3,
             max_anisotropy: 1.5,
             border_margin_px: 8.0,
+            max_off_axis_deg: 50.0,
         }
     }
 }
@@ -66,7 +72,30 @@ impl QueryView {
         angle: f64,
         border_margin_px: f64,
     ) -> Result<Self> {
-        let normalised = normalise(frame, centre, scale, angle);
+        Self::through(
+            frame,
+            None,
+            detector,
+            centre,
+            scale,
+            angle,
+            border_margin_px,
+        )
+    }
+
+    /// [`QueryView::new`] for a frame seen through `lens` (see [`crate::warp::Lens`]): the
+    /// undistortion is folded into the same resampling, and the view's transform acts on
+    /// undistorted pixels.
+    pub fn through(
+        frame: &GrayImage,
+        lens: Option<Lens>,
+        detector: &dyn Detector,
+        centre: (f64, f64),
+        scale: f64,
+        angle: f64,
+        border_margin_px: f64,
+    ) -> Result<Self> {
+        let normalised = normalise_lens(frame, lens, centre, scale, angle);
         let all = detector.detect(&normalised.image)?;
         let keep: Vec<usize> = (0..all.len())
             .filter(|&i| {
@@ -104,7 +133,8 @@ pub struct Candidate {
     pub tile: usize,
     /// Which query view matched.
     pub view: usize,
-    /// Frame pixels → map pixels.
+    /// Frame pixels → map pixels (undistorted frame pixels for a camera with a lens model:
+    /// those of [`jointloc_geometry::PinholeCamera::without_distortion`]).
     pub h_map_from_frame: Matrix3<f64>,
     /// All matches (query index in the view's features, index in the tile's features).
     pub matches: Matches,

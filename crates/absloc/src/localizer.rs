@@ -24,7 +24,7 @@ use crate::pipeline::FeaturePipeline;
 use crate::search::{self, SearchInput};
 use crate::ssim::{SsimConfig, ssim_masked};
 use crate::tiles::MapTiles;
-use crate::warp::warp_into_map;
+use crate::warp::{Lens, warp_into_map_lens};
 
 /// Settings of [`AbsLocalizer`].
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -553,8 +553,9 @@ impl AbsLocalizer {
             let id = match views.iter().position(|(b, _)| angle_eq(*b, a)) {
                 Some(id) => id,
                 None => {
-                    let v = QueryView::new(
+                    let v = QueryView::through(
                         frame,
+                        Lens::of(&self.camera, self.config.accept.max_off_axis_deg),
                         self.pipeline.detector.as_ref(),
                         principal,
                         scale,
@@ -682,7 +683,9 @@ impl AbsLocalizer {
         }
         let (w, hgt) = ((x1 - x0) as usize + 1, (y1 - y0) as usize + 1);
         let k = (1.0 / scale).ceil().max(1.0) as usize;
-        let (warped, mask) = warp_into_map(frame, h, (x0 as u32, y0 as u32), (w, hgt), k)?;
+        let lens = Lens::of(&self.camera, self.config.accept.max_off_axis_deg);
+        let (warped, mask) =
+            warp_into_map_lens(frame, lens, h, (x0 as u32, y0 as u32), (w, hgt), k)?;
         let region: Vec<f32> = (0..hgt)
             .flat_map(|r| (0..w).map(move |c| (c, r)))
             .map(|(c, r)| map.get_pixel(x0 as u32 + c as u32, y0 as u32 + r as u32)[0] as f32)

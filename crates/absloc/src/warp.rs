@@ -4,9 +4,15 @@
 //! Downsampling by 2.5× (10 m altitude, 0.05 m map pixels) would alias with plain bilinear
 //! sampling, so every output pixel averages `k × k` bilinear samples spread over its footprint
 //! (`k = ⌈source pixels per output pixel⌉`): an area filter.
+//!
+//! A camera with a lens model (a fisheye) is undistorted in the same resampling: the
+//! similarity acts on the pixels of the distortion-free pinhole with the camera's intrinsics
+//! ([`Lens`]), and each output sample is pushed through the lens model to find its frame
+//! pixel. There is one resampling, not an undistortion followed by a warp.
 
 use image::GrayImage;
-use nalgebra::{Matrix3, Point2};
+use jointloc_geometry::PinholeCamera;
+use nalgebra::{Matrix3, Point2, Vector2};
 
 /// Largest supersampling factor per axis.
 const MAX_SUPERSAMPLING: usize = 8;
@@ -65,6 +71,43 @@ pub fn resample(
         }
     }
     (values, mask)
+}
+
+/// The lens of a frame being resampled: undistorted pixels (those of
+/// [`PinholeCamera::without_distortion`]) → frame pixels, within `max_tan` of the axis.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Lens {
+    pub camera: PinholeCamera,
+    /// `tan` of the largest off-axis angle sampled.
+    pub max_tan: f64,
+}
+
+impl Lens {
+    /// `None` for a camera without distortion (frame pixels are undistorted pixels).
+    pub fn of(camera: &PinholeCamera, max_off_axis_deg: f64) -> Option<Self> {
+        camera.has_distortion().then(|| Self {
+            camera: *camera,
+            max_tan: max_off_axis_deg.clamp(1.0, 89.0).to_radians().tan(),
+        })
+    }
+
+    /// The frame pixel of undistorted pixel `(x, y)`; `None` beyond `max_tan`.
+    pub fn distort(&self, x: f64, y: f64) -> Option<(f64, f64)> {
+        let c = &self.camera;
+        let xn = Vector2::new((x - c.cx) / c.fx, (y - c.cy) / c.fy);
+        let r = xn.norm();
+        if r.is_nan() || r > self.max_tan {
+            return None;
+        }
+        c.distort_to_pixel(&xn).map(|p| (p.x, p.y))
+    }
+
+    /// The undistorted pixel of frame pixel `(x, y)`; `None` beyond `max_tan`.
+    pub fn undistort(&self, x: f64, y: f64) -> Option<(f64, f64)> {
+        let c = &self.camera;
+        let r = c.unproject(&Point2::new(x, y))?;
+        (r.xy().norm() <= self.max_tan).then(|| (c.fx * r.x + c.cx, c.fy * r.y + c.cy))
+    }
 }
 
 /// The similarity `p' = s·R(θ)·(p − c) + c'` from frame pixels to normalised pixels
@@ -133,6 +176,8 @@ pub struct NormalisedFrame {
     pub transform: Similarity,
     /// Frame size.
     pub frame_size: (u32, u32),
+    /// The frame's lens, when `transform` acts on undistorted pixels.
+    pub lens: Option<Lens>,
 }
 
 impl NormalisedFrame {
@@ -140,6 +185,9 @@ impl NormalisedFrame {
     /// inside its border (keypoints nearer the border see the fill edge).
     pub fn inside(&self, u: f64, v: f64, margin: f64) -> bool {
         let (x, y) = self.transform.inverse(u, v);
+        let Some((x, y)) = self.lens.map_or(Some((x, y)), |l| l.distort(x, y)) else {
+            return false;
+        };
         let (w, h) = (self.frame_size.0 as f64, self.frame_size.1 as f64);
         x >= margin && y >= margin && x <= w - 1.0 - margin && y <= h - 1.0 - margin
     }
@@ -148,6 +196,18 @@ impl NormalisedFrame {
 /// Resamples `frame` by `scale` (output pixels per frame pixel) and rotation `angle` about
 /// `centre`, into the smallest image holding the whole frame.
 pub fn normalise(frame: &GrayImage, centre: (f64, f64), scale: f64, angle: f64) -> NormalisedFrame {
+    normalise_lens(frame, None, centre, scale, angle)
+}
+
+/// [`normalise`] for a frame seen through `lens`: the similarity acts on undistorted pixels
+/// and the output holds the undistorted frame up to the lens's largest off-axis angle.
+pub fn normalise_lens(
+    frame: &GrayImage,
+    lens: Option<Lens>,
+    centre: (f64, f64),
+    scale: f64,
+    angle: f64,
+) -> NormalisedFrame {
     let (w, h) = (frame.width() as f64, frame.height() as f64);
     let probe = Similarity {
         scale,
@@ -155,11 +215,18 @@ pub fn normalise(frame: &GrayImage, centre: (f64, f64), scale: f64, angle: f64) 
         src_centre: [centre.0, centre.1],
         dst_centre: [0.0, 0.0],
     };
+    let extent = match &lens {
+        Some(l) => {
+            let [u0, v0, u1, v1] = l.camera.undistorted_bounds(l.max_tan.atan());
+            [u0 + 0.5, v0 + 0.5, u1 - 0.5, v1 - 0.5]
+        }
+        None => [0.0, 0.0, w - 1.0, h - 1.0],
+    };
     let corners = [
-        (0.0, 0.0),
-        (w - 1.0, 0.0),
-        (w - 1.0, h - 1.0),
-        (0.0, h - 1.0),
+        (extent[0], extent[1]),
+        (extent[2], extent[1]),
+        (extent[2], extent[3]),
+        (extent[0], extent[3]),
     ]
     .map(|(x, y)| probe.forward(x, y));
     let min_u = corners.iter().map(|c| c.0).fold(f64::INFINITY, f64::min);
@@ -179,7 +246,13 @@ pub fn normalise(frame: &GrayImage, centre: (f64, f64), scale: f64, angle: f64) 
         ..probe
     };
     let k = (1.0 / scale).ceil().max(1.0) as usize;
-    let (values, mask) = resample(frame, out_w, out_h, k, |u, v| Some(transform.inverse(u, v)));
+    let (values, mask) = resample(frame, out_w, out_h, k, |u, v| {
+        let (x, y) = transform.inverse(u, v);
+        match &lens {
+            Some(l) => l.distort(x, y),
+            None => Some((x, y)),
+        }
+    });
     let mean = {
         let raw = frame.as_raw();
         raw.iter().map(|&p| p as f64).sum::<f64>() / raw.len().max(1) as f64
@@ -193,6 +266,7 @@ pub fn normalise(frame: &GrayImage, centre: (f64, f64), scale: f64, angle: f64) 
         image,
         transform,
         frame_size: frame.dimensions(),
+        lens,
     }
 }
 
@@ -202,6 +276,19 @@ pub fn normalise(frame: &GrayImage, centre: (f64, f64), scale: f64, angle: f64) 
 pub fn warp_into_map(
     frame: &GrayImage,
     h_map_from_frame: &Matrix3<f64>,
+    origin: (u32, u32),
+    size: (usize, usize),
+    k: usize,
+) -> Option<(Vec<f32>, Vec<bool>)> {
+    warp_into_map_lens(frame, None, h_map_from_frame, origin, size, k)
+}
+
+/// [`warp_into_map`] for a frame seen through `lens`: `h_map_from_frame` maps undistorted
+/// pixels, and each sample goes through the lens model to the frame.
+pub fn warp_into_map_lens(
+    frame: &GrayImage,
+    lens: Option<Lens>,
+    h_map_from_frame: &Matrix3<f64>,
     (x0, y0): (u32, u32),
     (width, height): (usize, usize),
     k: usize,
@@ -209,7 +296,11 @@ pub fn warp_into_map(
     let inv = h_map_from_frame.try_inverse()?;
     Some(resample(frame, width, height, k, |u, v| {
         let q = inv * Point2::new(u + x0 as f64, v + y0 as f64).to_homogeneous();
-        (q.z.abs() > 1e-12).then(|| (q.x / q.z, q.y / q.z))
+        let (x, y) = (q.z.abs() > 1e-12).then(|| (q.x / q.z, q.y / q.z))?;
+        match &lens {
+            Some(l) => l.distort(x, y),
+            None => Some((x, y)),
+        }
     }))
 }
 

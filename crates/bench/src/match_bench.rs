@@ -193,6 +193,7 @@ pub fn run_pair(
         max_log_scale_error: f64::INFINITY,
         max_anisotropy: f64::INFINITY,
         border_margin_px: 4.0,
+        ..AcceptConfig::default()
     };
     let ctx = MatchContext {
         matcher: pipeline.matcher.as_ref(),

@@ -5,6 +5,7 @@ use std::path::PathBuf;
 
 use anyhow::Context;
 use indicatif::{ProgressBar, ProgressStyle};
+use jointloc_geometry::{Distortion, PinholeCamera};
 use jointloc_sim::dataset::{generate_dataset, prepare_output_dir};
 use jointloc_sim::{Difficulty, SimConfig, SimError, Stage, TerrainKind};
 
@@ -13,6 +14,12 @@ enum TerrainArg {
     Crater,
     Gravel,
     Mountain,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+enum CameraArg {
+    Pinhole,
+    Fisheye,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
@@ -56,6 +63,15 @@ pub struct Args {
     /// Image height in pixels [default: 500].
     #[arg(long, value_parser = clap::value_parser!(u32).range(2..=16384))]
     height: Option<u32>,
+    /// Lens: an ideal pinhole, or a Kannala-Brandt fisheye (TUM-VI's cam0 coefficients) whose
+    /// focal length gives --fov-deg across the image width [default: pinhole].
+    #[arg(long, value_enum)]
+    camera: Option<CameraArg>,
+    /// Horizontal field of view across the image width, degrees: sets the focal length
+    /// (pinhole: (W/2)/tan(fov/2); fisheye: (W/2)/θ_d(fov/2)) [default: fisheye 133,
+    /// pinhole from --fx].
+    #[arg(long, value_parser = positive)]
+    fov_deg: Option<f64>,
     /// Focal length in pixels, x [default: 500].
     #[arg(long, value_parser = positive)]
     fx: Option<f64>,
@@ -161,6 +177,30 @@ fn config(args: &Args) -> anyhow::Result<SimConfig> {
     if let Some(h) = args.height {
         cam.height = h;
         cam.cy = (h as f64 - 1.0) / 2.0;
+    }
+    let (w, h) = (cam.width, cam.height);
+    match (args.camera, args.fov_deg) {
+        (Some(CameraArg::Fisheye), fov) => {
+            *cam = jointloc_sim::config::fisheye_camera(fov.unwrap_or(133.0), w, h)?;
+        }
+        (Some(CameraArg::Pinhole), fov) => {
+            let f = match fov {
+                Some(fov) => jointloc_sim::config::pinhole_camera(fov, w, h)?.fx,
+                None => cam.fx,
+            };
+            *cam = PinholeCamera::ideal(f, w, h);
+        }
+        (None, Some(fov)) => {
+            let f = match cam.distortion {
+                Some(Distortion::KannalaBrandt(_)) => {
+                    jointloc_sim::config::fisheye_camera(fov, w, h)?.fx
+                }
+                _ => jointloc_sim::config::pinhole_camera(fov, w, h)?.fx,
+            };
+            cam.fx = f;
+            cam.fy = f;
+        }
+        (None, None) => {}
     }
     if let Some(fx) = args.fx {
         cam.fx = fx;

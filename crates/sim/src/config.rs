@@ -4,7 +4,7 @@
 
 use std::path::Path;
 
-use jointloc_geometry::PinholeCamera;
+use jointloc_geometry::{Distortion, KannalaBrandt, PinholeCamera};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
@@ -17,6 +17,47 @@ use crate::sensor::SensorConfig;
 use crate::shading::{ShadingConfig, Sun};
 use crate::terrain::{TerrainConfig, TerrainKind};
 use crate::trajectory::TrajectoryConfig;
+
+/// Off-axis angle (degrees) up to which a fisheye's view of the ground lies on the map (see
+/// [`SimConfig::effective_margin_m`]); the SLAM keeps keypoints up to 70° by default.
+pub const FISHEYE_MAP_ANGLE_DEG: f64 = 72.0;
+
+/// The simulator's fisheye lens: TUM-VI's cam0 Kannala-Brandt coefficients (a real 195°
+/// fisheye calibration, as in ORB-SLAM3's `TUM-VI.yaml`): within 0.3 % of pure equidistant
+/// up to 70° off axis.
+pub const FISHEYE_LENS: KannalaBrandt = KannalaBrandt {
+    k1: 0.0034823894022493434,
+    k2: 0.0007150348452162257,
+    k3: -0.0020532361418706202,
+    k4: 0.00020293673591811182,
+};
+
+/// A [`FISHEYE_LENS`] camera whose horizontal field of view spans the image width:
+/// `f = (width / 2) / θ_d(fov / 2)` (215.7 px for 133° over 500 px), square pixels, principal
+/// point at the image centre.
+pub fn fisheye_camera(fov_deg: f64, width: u32, height: u32) -> Result<PinholeCamera> {
+    PinholeCamera::fisheye(fov_deg, width, height, FISHEYE_LENS).ok_or_else(|| {
+        SimError::InvalidConfig {
+            field: "fov_deg",
+            value: fov_deg.to_string(),
+            reason: "a fisheye's field of view must be in (0, 180) degrees".into(),
+        }
+    })
+}
+
+/// An ideal pinhole whose horizontal field of view spans the image width:
+/// `f = (width / 2) / tan(fov / 2)`.
+pub fn pinhole_camera(fov_deg: f64, width: u32, height: u32) -> Result<PinholeCamera> {
+    if !(fov_deg > 0.0 && fov_deg < 170.0) {
+        return Err(SimError::InvalidConfig {
+            field: "fov_deg",
+            value: fov_deg.to_string(),
+            reason: "a pinhole's field of view must be in (0, 170) degrees".into(),
+        });
+    }
+    let f = width as f64 / 2.0 / (fov_deg / 2.0).to_radians().tan();
+    Ok(PinholeCamera::ideal(f, width, height))
+}
 
 /// Everything that defines a dataset. Same config (seed included) → byte-identical files.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -333,16 +374,39 @@ impl SimConfig {
     pub fn effective_margin_m(&self) -> f64 {
         let cam = &self.camera;
         let (w, h) = (cam.width as f64, cam.height as f64);
-        let corner_tan = [
+        // The corners, and for a fisheye the whole border: a pixel that does not unproject
+        // (at or beyond 90° off axis) counts as the 80° cap below.
+        let corners = [
             (-0.5, -0.5),
             (w - 0.5, -0.5),
             (-0.5, h - 0.5),
             (w - 0.5, h - 0.5),
-        ]
-        .iter()
-        .filter_map(|&(u, v)| cam.unproject(&nalgebra::Point2::new(u, v)))
-        .map(|r| r.xy().norm())
-        .fold(0.0, f64::max);
+        ];
+        let fisheye = matches!(cam.distortion, Some(Distortion::KannalaBrandt(_)));
+        let border: Vec<(f64, f64)> = if fisheye {
+            let (nw, nh) = (cam.width as usize, cam.height as usize);
+            (0..=nw)
+                .flat_map(|u| [(u as f64 - 0.5, -0.5), (u as f64 - 0.5, h - 0.5)])
+                .chain((0..=nh).flat_map(|v| [(-0.5, v as f64 - 0.5), (w - 0.5, v as f64 - 0.5)]))
+                .collect()
+        } else {
+            corners.to_vec()
+        };
+        let corner_tan = border
+            .iter()
+            .map(|&(u, v)| {
+                cam.unproject(&nalgebra::Point2::new(u, v))
+                    .map_or(f64::INFINITY, |r| r.xy().norm())
+            })
+            .filter(|t| fisheye || t.is_finite())
+            .fold(0.0, f64::max);
+        // A fisheye's periphery sees the ground at grazing angles tens of metres away: the map
+        // covers it up to FISHEYE_MAP_ANGLE_DEG, beyond that the frame shows the background.
+        let corner_tan = if fisheye {
+            corner_tan.min(FISHEYE_MAP_ANGLE_DEG.to_radians().tan())
+        } else {
+            corner_tan
+        };
         let tilt = (corner_tan.atan() + 2f64.to_radians())
             .min(80f64.to_radians())
             .tan();

@@ -10,7 +10,7 @@
 //! Pixel `(u, v)` samples the ray through its centre, given by [`PinholeCamera::unproject`]
 //! (distortion included), so rendering and projection agree by construction.
 
-use jointloc_geometry::{CameraToWorld, PinholeCamera};
+use jointloc_geometry::{CameraToWorld, Distortion, PinholeCamera};
 use nalgebra::{Point2, Point3, Vector3};
 use rayon::prelude::*;
 
@@ -501,9 +501,37 @@ pub fn validate_camera(camera: &PinholeCamera) -> Result<()> {
         }
     }
     if let Some(d) = camera.distortion
-        && ![d.k1, d.k2, d.p1, d.p2, d.k3].iter().all(|c| c.is_finite())
+        && !d.coefficients().iter().all(|c| c.is_finite())
     {
         return bad("camera.distortion", format!("{d:?}"), "must be finite");
+    }
+    if let Some(Distortion::KannalaBrandt(lens)) = camera.distortion {
+        // θ_d must increase over the image: up to the farthest corner or 90°.
+        let corner = [camera.cx, camera.width as f64 - camera.cx]
+            .iter()
+            .map(|dx| (dx + 0.5) / camera.fx)
+            .fold(0.0, f64::max)
+            .hypot(
+                [camera.cy, camera.height as f64 - camera.cy]
+                    .iter()
+                    .map(|dy| (dy + 0.5) / camera.fy)
+                    .fold(0.0, f64::max),
+            );
+        let steps = 256;
+        for i in 1..=steps {
+            let theta = std::f64::consts::FRAC_PI_2 * i as f64 / steps as f64;
+            let (td, dtd) = lens.theta_d(theta);
+            if dtd <= 0.0 {
+                return bad(
+                    "camera.distortion",
+                    format!("{lens:?}"),
+                    "the Kannala-Brandt polynomial must increase up to 90° off axis",
+                );
+            }
+            if td > corner {
+                break;
+            }
+        }
     }
     Ok(())
 }
@@ -637,15 +665,24 @@ mod tests {
         let mut rng = ChaCha8Rng::seed_from_u64(9);
         for distortion in [
             None,
-            Some(RadTan {
-                k1: -0.2,
-                k2: 0.05,
-                ..Default::default()
-            }),
+            Some(
+                RadTan {
+                    k1: -0.2,
+                    k2: 0.05,
+                    ..Default::default()
+                }
+                .into(),
+            ),
+            Some(jointloc_geometry::KannalaBrandt::default().into()),
         ] {
-            let camera = PinholeCamera {
-                distortion,
-                ..PinholeCamera::ideal(60.0, 64, 48)
+            let camera = match distortion {
+                Some(Distortion::KannalaBrandt(lens)) => {
+                    PinholeCamera::fisheye(133.0, 64, 48, lens).unwrap()
+                }
+                _ => PinholeCamera {
+                    distortion,
+                    ..PinholeCamera::ideal(60.0, 64, 48)
+                },
             };
             let renderer = UavRenderer::new(&tr, &radiance, camera).unwrap();
             for _ in 0..20 {

@@ -11,7 +11,7 @@ use std::path::Path;
 
 use common::{read_grey, read_pairs, read_tum};
 use jointloc_formats::{ElevationModel, Grid, MapInfo, read_camera_yaml};
-use jointloc_geometry::RadTan;
+use jointloc_geometry::{Distortion, KannalaBrandt, PinholeCamera, RadTan};
 use jointloc_sim::dataset::{DatasetPlan, SimConfig, plan_dataset, write_dataset};
 use jointloc_sim::sensor::SensorConfig;
 use jointloc_sim::{Difficulty, Sun, Terrain};
@@ -91,7 +91,7 @@ fn centroid(
 
 struct Case {
     difficulty: Difficulty,
-    distortion: Option<RadTan>,
+    distortion: Option<Distortion>,
     seed: u64,
     /// Flight height (m); above 20 m the camera is 500 × 500 at f = 500 and the markers lie
     /// on a 25 m grid around the path instead of beside it.
@@ -130,6 +130,14 @@ fn run_case(case: &Case, tmp: &Path) {
         cfg.camera.cy = 98.2;
     }
     cfg.camera.distortion = case.distortion;
+    if let Some(Distortion::KannalaBrandt(lens)) = case.distortion {
+        // 133° across the width: f = (W / 2) / θ_d(66.5°).
+        cfg.camera = PinholeCamera {
+            cx: 121.3,
+            cy: 98.2,
+            ..PinholeCamera::fisheye(133.0, 240, 200, lens).unwrap()
+        };
+    }
     let mut sat = case.difficulty.satellite_config();
     sat.sensor = SensorConfig {
         blur_sigma_px: sat.sensor.blur_sigma_px,
@@ -228,10 +236,10 @@ fn run_case(case: &Case, tmp: &Path) {
         );
     }
     eprintln!(
-        "{:?} {} m distortion={}: {checked} UAV sightings, worst {worst:.3} px; {} map markers, worst {map_worst:.3} px",
+        "{:?} {} m distortion={:?}: {checked} UAV sightings, worst {worst:.3} px; {} map markers, worst {map_worst:.3} px",
         case.difficulty,
         case.altitude_m,
-        case.distortion.is_some(),
+        case.distortion.map(|d| d.coefficients()),
         markers.len()
     );
 
@@ -284,13 +292,16 @@ fn markers_land_where_ground_truth_and_georeference_predict() {
         },
         Case {
             difficulty: Difficulty::Medium,
-            distortion: Some(RadTan {
-                k1: -0.08,
-                k2: 0.015,
-                p1: 1e-3,
-                p2: -6e-4,
-                k3: 0.0,
-            }),
+            distortion: Some(
+                RadTan {
+                    k1: -0.08,
+                    k2: 0.015,
+                    p1: 1e-3,
+                    p2: -6e-4,
+                    k3: 0.0,
+                }
+                .into(),
+            ),
             seed: 2,
             altitude_m: 10.0,
             map_size_m: None,
@@ -299,6 +310,19 @@ fn markers_land_where_ground_truth_and_georeference_predict() {
             difficulty: Difficulty::Hard,
             distortion: None,
             seed: 3,
+            altitude_m: 10.0,
+            map_size_m: None,
+        },
+        // A 133° Kannala-Brandt fisheye (TUM-VI's cam0 coefficients).
+        Case {
+            difficulty: Difficulty::Easy,
+            distortion: Some(Distortion::KannalaBrandt(KannalaBrandt {
+                k1: 0.0034823894022493434,
+                k2: 0.0007150348452162257,
+                k3: -0.0020532361418706202,
+                k4: 0.00020293673591811182,
+            })),
+            seed: 5,
             altitude_m: 10.0,
             map_size_m: None,
         },

@@ -1,5 +1,13 @@
 //! A tracked frame: its ORB features in undistorted pixels, the map points its keypoints are
 //! matched to, its pose, and the grey-level entropy the keyframe decision uses.
+//!
+//! Keypoints are rectified on extraction ([`Undistorter`]): the tracker, the triangulation
+//! and every bundle adjustment work in the pixels of a distortion-free pinhole with the
+//! camera's focal lengths. With a lens model that pinhole's image rectangle is the bounding
+//! box of the undistorted image (ORB-SLAM2's `mnMinX..mnMaxY`), so a fisheye's periphery,
+//! whose undistorted keypoints land far outside the original rectangle, stays inside the
+//! feature grid and the tracker's `contains` checks. A fisheye's rays reach 90° and beyond;
+//! keypoints further than a set angle off axis are dropped (`tan θ` grows without bound).
 
 use jointloc_features::orb::{FeatureGrid, GrayImageView, OrbFeatures};
 use jointloc_geometry::{PinholeCamera, WorldToCamera};
@@ -9,6 +17,77 @@ use crate::map::{KeyFrameId, MapPointId};
 
 /// Side of the cells of a frame's [`FeatureGrid`], pixels (ORB-SLAM2 uses ~10 px cells).
 pub const GRID_CELL_PX: f64 = 10.0;
+
+/// Default of `SystemConfig::max_off_axis_deg`.
+pub const DEFAULT_MAX_OFF_AXIS_DEG: f64 = 70.0;
+
+/// Image pixels → the tracker's pixels: the camera's lens model undone, into a
+/// distortion-free pinhole (`ideal`) whose image covers the undistorted image.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Undistorter {
+    /// The real camera (with its lens model).
+    pub camera: PinholeCamera,
+    /// The tracker's camera: no distortion, the same focal lengths; for a camera with a lens
+    /// model the principal point and size are those of the undistorted image's bounding box
+    /// (up to `max_off_axis`); otherwise the camera itself.
+    pub ideal: PinholeCamera,
+    /// `tan` of the largest off-axis angle kept.
+    max_tan: f64,
+}
+
+impl Undistorter {
+    /// The rectification of `camera`, keeping keypoints up to `max_off_axis_deg` off axis
+    /// (clamped to [1°, 89°]; a camera without distortion keeps everything).
+    pub fn new(camera: &PinholeCamera, max_off_axis_deg: f64) -> Self {
+        let max = max_off_axis_deg.clamp(1.0, 89.0).to_radians();
+        if !camera.has_distortion() {
+            return Self {
+                camera: *camera,
+                ideal: camera.without_distortion(),
+                max_tan: f64::INFINITY,
+            };
+        }
+        let [u0, v0, u1, v1] = camera.undistorted_bounds(max);
+        // Pixel u of the undistorted image is u − u0 − 0.5 in the tracker's: its edge u0 is
+        // the left edge −0.5 of the rectangle.
+        let (du, dv) = (-u0 - 0.5, -v0 - 0.5);
+        let ideal = PinholeCamera {
+            cx: camera.cx + du,
+            cy: camera.cy + dv,
+            width: (u1 - u0).ceil().max(1.0) as u32,
+            height: (v1 - v0).ceil().max(1.0) as u32,
+            distortion: None,
+            ..*camera
+        };
+        tracing::debug!(
+            width = ideal.width,
+            height = ideal.height,
+            cx = ideal.cx,
+            cy = ideal.cy,
+            "rectified tracker camera"
+        );
+        Self {
+            camera: *camera,
+            ideal,
+            max_tan: max.tan(),
+        }
+    }
+
+    /// The tracker's pixel of image pixel `uv`; `None` beyond the largest off-axis angle or
+    /// where the lens model cannot be inverted.
+    pub fn undistort(&self, uv: &Point2<f64>) -> Option<Point2<f64>> {
+        if self.max_tan.is_infinite() {
+            return Some(*uv);
+        }
+        let x = self.camera.unproject(uv)?;
+        (x.xy().norm() <= self.max_tan).then(|| {
+            Point2::new(
+                self.ideal.fx * x.x + self.ideal.cx,
+                self.ideal.fy * x.y + self.ideal.cy,
+            )
+        })
+    }
+}
 
 /// One image of the sequence as the tracker sees it.
 #[derive(Debug, Clone)]
@@ -35,21 +114,51 @@ pub struct Frame {
 
 impl Frame {
     /// Wraps extracted features; keypoints are undistorted through `camera` when it has a
-    /// distortion model (keypoints that cannot be undistorted keep their position).
+    /// distortion model, as [`Frame::rectified`] with [`DEFAULT_MAX_OFF_AXIS_DEG`].
     pub fn new(
         index: usize,
         timestamp: f64,
-        mut features: OrbFeatures,
+        features: OrbFeatures,
         camera: &PinholeCamera,
         altitude: Option<f64>,
         entropy: f64,
     ) -> Self {
-        if camera.distortion.is_some_and(|d| !d.is_zero()) {
+        let undistorter = Undistorter::new(camera, DEFAULT_MAX_OFF_AXIS_DEG);
+        Self::rectified(index, timestamp, features, &undistorter, altitude, entropy)
+    }
+
+    /// Wraps extracted features; keypoints are moved into the tracker's pixels by
+    /// `undistorter` (those it cannot move, beyond its largest off-axis angle, are dropped).
+    pub fn rectified(
+        index: usize,
+        timestamp: f64,
+        mut features: OrbFeatures,
+        undistorter: &Undistorter,
+        altitude: Option<f64>,
+        entropy: f64,
+    ) -> Self {
+        let camera = &undistorter.ideal;
+        if undistorter.camera.has_distortion() {
+            let mut keep = Vec::with_capacity(features.len());
             for k in &mut features.keypoints {
-                if let Some(x) = camera.unproject(&Point2::new(k.x, k.y)) {
-                    k.x = camera.fx * x.x + camera.cx;
-                    k.y = camera.fy * x.y + camera.cy;
+                let p = undistorter.undistort(&Point2::new(k.x, k.y));
+                if let Some(p) = p {
+                    k.x = p.x;
+                    k.y = p.y;
                 }
+                keep.push(p.is_some());
+            }
+            if keep.iter().any(|k| !k) {
+                let mut i = 0;
+                features.keypoints.retain(|_| {
+                    i += 1;
+                    keep[i - 1]
+                });
+                let mut i = 0;
+                features.descriptors.retain(|_| {
+                    i += 1;
+                    keep[i - 1]
+                });
             }
         }
         let grid = FeatureGrid::new(

@@ -15,7 +15,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::cpu_time::{cpu_ms, thread_cpu_ns};
 use crate::error::{Result, SlamError};
-use crate::frame::{Frame, image_entropy};
+use crate::frame::{DEFAULT_MAX_OFF_AXIS_DEG, Frame, Undistorter, image_entropy};
 use crate::local_mapping::{GroundModel, LocalMapper, LocalMappingConfig};
 use crate::map::{GlobalFix, KeyFrameId, Map, RetiredKeyFrame};
 use crate::tracking::{Tracker, TrackingConfig, TrackingState};
@@ -37,6 +37,11 @@ pub struct SystemConfig {
     /// window (itself + up to `local_mapping.ba.max_window` covisible keyframes) and the
     /// tracker's reference keyframe are never retired, so a cap below that many is exceeded.
     pub max_keyframes: usize,
+    /// Keypoints further off the optical axis than this (degrees) are dropped when a lens
+    /// model is undone (`frame::Undistorter`): a fisheye's rays reach 90°, where undistorted
+    /// pixels run to infinity. Default 70 (a 133° fisheye keeps its whole width, the corners
+    /// pulled in). No effect on a camera without distortion.
+    pub max_off_axis_deg: f64,
 }
 
 impl Default for SystemConfig {
@@ -46,6 +51,7 @@ impl Default for SystemConfig {
             tracking: TrackingConfig::default(),
             local_mapping: LocalMappingConfig::default(),
             max_keyframes: 200,
+            max_off_axis_deg: DEFAULT_MAX_OFF_AXIS_DEG,
         }
     }
 }
@@ -121,9 +127,9 @@ struct FrameRecord {
 #[derive(Debug)]
 pub struct System {
     camera: PinholeCamera,
-    /// The camera the tracker works with: the same intrinsics without distortion, since
-    /// keypoints are undistorted on extraction.
-    ideal: PinholeCamera,
+    /// Keypoints → the tracker's pixels; its `ideal` camera is the one the tracker works
+    /// with (no distortion, the undistorted image's bounds).
+    undistorter: Undistorter,
     extractor: OrbExtractor,
     map: Map,
     tracker: Tracker,
@@ -149,13 +155,17 @@ impl System {
         }
         let extractor = OrbExtractor::new(config.orb.clone())?;
         config.tracking.initialization.initializer.validate()?;
+        if !(config.max_off_axis_deg > 0.0 && config.max_off_axis_deg < 90.0) {
+            return Err(SlamError::InvalidConfig {
+                field: "max_off_axis_deg",
+                value: config.max_off_axis_deg.to_string(),
+                reason: "must be in (0, 90) degrees",
+            });
+        }
         let map = Map::new(config.orb.scale_factor, config.orb.n_levels);
         Ok(Self {
             camera,
-            ideal: PinholeCamera {
-                distortion: None,
-                ..camera
-            },
+            undistorter: Undistorter::new(&camera, config.max_off_axis_deg),
             extractor,
             map,
             tracker: Tracker::new(config.tracking),
@@ -174,9 +184,10 @@ impl System {
     }
 
     /// The camera the map's keypoints are measured in (the intrinsics without distortion:
-    /// keypoints are undistorted on extraction), as the bundle adjustments use it.
+    /// keypoints are undistorted on extraction; with a lens model, the undistorted image's
+    /// bounds, see [`Undistorter`]), as the bundle adjustments use it.
     pub fn ideal_camera(&self) -> &PinholeCamera {
-        &self.ideal
+        &self.undistorter.ideal
     }
 
     pub fn map(&self) -> &Map {
@@ -298,10 +309,19 @@ impl System {
         let c0 = thread_cpu_ns();
         let features = self.extractor.extract(image)?;
         let entropy = image_entropy(&image);
-        let mut frame = Frame::new(index, timestamp, features, &self.camera, altitude, entropy);
+        let mut frame = Frame::rectified(
+            index,
+            timestamp,
+            features,
+            &self.undistorter,
+            altitude,
+            entropy,
+        );
         let t1 = Instant::now();
         let c1 = thread_cpu_ns();
-        let outcome = self.tracker.track(&mut frame, &mut self.map, &self.ideal);
+        let outcome = self
+            .tracker
+            .track(&mut frame, &mut self.map, &self.undistorter.ideal);
         let t2 = Instant::now();
         let c2 = thread_cpu_ns();
         let mut keyframe = None;
@@ -321,7 +341,7 @@ impl System {
             let report = self.mapper.process(
                 &mut self.map,
                 kf,
-                &self.ideal,
+                &self.undistorter.ideal,
                 self.slam_to_world.as_ref(),
                 self.ground.as_deref(),
             )?;
