@@ -145,14 +145,59 @@ impl KannalaBrandt {
     }
 }
 
-/// The lens model of a [`PinholeCamera`].
+/// The lens model of a [`PinholeCamera`]. Serialised with a `model` key (`rad_tan` or
+/// `kannala_brandt`); a table without one is read as radial-tangential, the only model of
+/// files written before the fisheye existed.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "model", rename_all = "snake_case")]
+#[serde(try_from = "DistortionFile")]
 pub enum Distortion {
     /// Radial-tangential (OpenCV `plumb_bob`).
     RadTan(RadTan),
     /// Equidistant Kannala-Brandt fisheye.
     KannalaBrandt(KannalaBrandt),
+}
+
+/// What a `[distortion]` table may hold: a tagged model, or the untagged radial-tangential
+/// coefficients of older files (unknown keys refused, so a misspelt `model` is an error, not
+/// a silent zero distortion).
+#[derive(Deserialize)]
+#[serde(untagged)]
+enum DistortionFile {
+    Tagged(TaggedDistortion),
+    Legacy(LegacyRadTan),
+}
+
+#[derive(Deserialize)]
+#[serde(tag = "model", rename_all = "snake_case")]
+enum TaggedDistortion {
+    RadTan(RadTan),
+    KannalaBrandt(KannalaBrandt),
+}
+
+#[derive(Deserialize)]
+#[serde(default, deny_unknown_fields)]
+#[derive(Default)]
+struct LegacyRadTan {
+    k1: f64,
+    k2: f64,
+    p1: f64,
+    p2: f64,
+    k3: f64,
+}
+
+impl TryFrom<DistortionFile> for Distortion {
+    type Error = String;
+
+    fn try_from(d: DistortionFile) -> Result<Self, Self::Error> {
+        Ok(match d {
+            DistortionFile::Tagged(TaggedDistortion::RadTan(r)) => Self::RadTan(r),
+            DistortionFile::Tagged(TaggedDistortion::KannalaBrandt(k)) => Self::KannalaBrandt(k),
+            DistortionFile::Legacy(LegacyRadTan { k1, k2, p1, p2, k3 }) => {
+                Self::RadTan(RadTan { k1, k2, p1, p2, k3 })
+            }
+        })
+    }
 }
 
 impl From<RadTan> for Distortion {
@@ -371,6 +416,28 @@ impl PinholeCamera {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn distortion_tables_with_and_without_a_model_key() {
+        let read = |t: &str| toml::from_str::<Distortion>(t);
+        assert_eq!(
+            read("k1 = -0.2\np2 = 0.001").unwrap(),
+            Distortion::RadTan(RadTan {
+                k1: -0.2,
+                p2: 0.001,
+                ..RadTan::default()
+            })
+        );
+        assert!(matches!(
+            read("model = \"kannala_brandt\"\nk1 = 0.01").unwrap(),
+            Distortion::KannalaBrandt(k) if k.k1 == 0.01
+        ));
+        assert!(read("model = \"rad_tan\"\nk1 = 0.1").is_ok());
+        assert!(read("model = \"fisheye\"\nk1 = 0.1").is_err());
+        assert!(read("k9 = 0.1").is_err());
+        let kb = Distortion::KannalaBrandt(KannalaBrandt::default());
+        assert_eq!(read(&toml::to_string(&kb).unwrap()).unwrap(), kb);
+    }
 
     fn distorted() -> PinholeCamera {
         PinholeCamera {
