@@ -164,3 +164,74 @@ fn existing_outputs_are_refused_without_force() {
     assert!(tum_lines(&out) > 10);
     assert!(tum_lines(&kf) >= 2);
 }
+
+/// Sim(3)-aligned APE rmse of `est` against the dataset's ground truth, by `jointloc eval`.
+fn sim3_ape(ds: &Path, est: &Path) -> f64 {
+    let e = jointloc(&[
+        "eval",
+        "--gt",
+        ds.join("uav/gt.txt").to_str().unwrap(),
+        "--est",
+        est.to_str().unwrap(),
+        "--align",
+        "sim3",
+    ]);
+    assert!(e.status.success(), "{}", text(&e.stderr));
+    let out = text(&e.stdout);
+    out.lines()
+        .find_map(|l| l.strip_prefix("APE trans [m]"))
+        .and_then(|l| l.split_whitespace().next())
+        .and_then(|v| v.parse().ok())
+        .unwrap_or_else(|| panic!("no APE in\n{out}"))
+}
+
+#[test]
+fn a_fisheye_flight_tracks_as_well_as_the_pinhole_one() {
+    // The same ground and path seen through a 133° Kannala-Brandt lens and through the
+    // default pinhole: the fisheye is rendered, written as ORB-SLAM3's KannalaBrandt8, read
+    // back, and tracked from its undistorted keypoints.
+    let tmp = tempfile::tempdir().unwrap();
+    let mut ape = Vec::new();
+    for lens in [&["--camera", "fisheye", "--fov-deg", "133"][..], &[]] {
+        let ds = tmp.path().join(format!("ds{}", ape.len()));
+        let mut a = vec![
+            "sim",
+            "--length-m",
+            "12",
+            "--seed",
+            "33",
+            "--terrain",
+            "crater",
+            "--out",
+            ds.to_str().unwrap(),
+        ];
+        a.extend_from_slice(lens);
+        let sim = jointloc(&a);
+        assert!(sim.status.success(), "{}", text(&sim.stderr));
+        let yaml = std::fs::read_to_string(ds.join("camera.yaml")).unwrap();
+        assert_eq!(yaml.contains("KannalaBrandt8"), !lens.is_empty(), "{yaml}");
+        let out = tmp.path().join(format!("vo{}.tum", ape.len()));
+        let vo = jointloc(&[
+            "vo",
+            "--dataset",
+            ds.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+            "--sequential",
+        ]);
+        assert!(vo.status.success(), "{}", text(&vo.stderr));
+        let frames = tum_lines(&ds.join("uav/gt.txt"));
+        let tracked = tum_lines(&out);
+        assert!(
+            tracked + 10 >= frames,
+            "{tracked} of {frames} frames tracked"
+        );
+        ape.push(sim3_ape(&ds, &out));
+    }
+    let (fisheye, pinhole) = (ape[0], ape[1]);
+    assert!(fisheye < 0.05, "fisheye APE {fisheye} m");
+    assert!(
+        fisheye <= 1.5 * pinhole,
+        "fisheye {fisheye} m against pinhole {pinhole} m"
+    );
+}
