@@ -93,8 +93,8 @@ pub struct Args {
     /// Flight height above the ground in metres [default: 10].
     #[arg(long, value_parser = positive)]
     altitude: Option<f64>,
-    /// Altimeter noise σ at short range in metres; it grows as 1 % of the altitude above
-    /// 10 m [default: 0.1].
+    /// Altimeter noise σ at short range in metres; above it, σ is 0.5 % of the altitude
+    /// (from 20 m up with the default) [default: 0.1].
     #[arg(long)]
     altimeter_sigma: Option<f64>,
     /// Side of a square map larger than the flight, metres; the flight is placed in it at a
