@@ -61,7 +61,8 @@ fn real(v: f64) -> String {
 /// The file's text.
 pub fn camera_yaml_string(camera: &PinholeCamera, fps: f64, orb: &OrbDefaults) -> String {
     let mut s = String::from("%YAML:1.0\n\n");
-    match camera.distortion {
+    // ORB-SLAM3 names a fisheye's intrinsics `Camera1.*`; ORB-SLAM2 a pinhole's `Camera.*`.
+    let (prefix, coefficients) = match camera.distortion {
         Some(Distortion::KannalaBrandt(d)) => {
             s += "# ORB-SLAM3 settings layout (1.0)\n";
             s += "File.version: \"1.0\"\n\n";
@@ -69,18 +70,10 @@ pub fn camera_yaml_string(camera: &PinholeCamera, fps: f64, orb: &OrbDefaults) -
             s += "# theta_d = theta (1 + k1 theta^2 + k2 theta^4 + k3 theta^6 + k4 theta^8).\n";
             s += "# Camera frame x right, y down, z forward; pixel centres at integer coordinates.\n";
             s += "Camera.type: \"KannalaBrandt8\"\n";
-            for (key, value) in [
-                ("fx", camera.fx),
-                ("fy", camera.fy),
-                ("cx", camera.cx),
-                ("cy", camera.cy),
-                ("k1", d.k1),
-                ("k2", d.k2),
-                ("k3", d.k3),
-                ("k4", d.k4),
-            ] {
-                s += &format!("Camera1.{key}: {}\n", real(value));
-            }
+            (
+                "Camera1",
+                [("k1", d.k1), ("k2", d.k2), ("k3", d.k3), ("k4", d.k4)].to_vec(),
+            )
         }
         other => {
             let d = match other {
@@ -89,20 +82,24 @@ pub fn camera_yaml_string(camera: &PinholeCamera, fps: f64, orb: &OrbDefaults) -
             };
             s += "# Camera calibration and distortion parameters (OpenCV): pinhole, radial-tangential.\n";
             s += "# Camera frame x right, y down, z forward; pixel centres at integer coordinates.\n";
-            for (key, value) in [
-                ("fx", camera.fx),
-                ("fy", camera.fy),
-                ("cx", camera.cx),
-                ("cy", camera.cy),
+            let c = [
                 ("k1", d.k1),
                 ("k2", d.k2),
                 ("p1", d.p1),
                 ("p2", d.p2),
                 ("k3", d.k3),
-            ] {
-                s += &format!("Camera.{key}: {}\n", real(value));
-            }
+            ];
+            ("Camera", c.to_vec())
         }
+    };
+    let intrinsics = [
+        ("fx", camera.fx),
+        ("fy", camera.fy),
+        ("cx", camera.cx),
+        ("cy", camera.cy),
+    ];
+    for (key, value) in intrinsics.into_iter().chain(coefficients) {
+        s += &format!("{prefix}.{key}: {}\n", real(value));
     }
     s += &format!(
         "\nCamera.width: {}\nCamera.height: {}\n",
