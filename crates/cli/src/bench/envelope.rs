@@ -19,6 +19,7 @@ use jointloc_formats::outputs::summary::{Summary, read_json};
 use jointloc_geometry::trajectory::{Trajectory, TumOptions};
 use serde::Serialize;
 
+use super::datasets::sim_into_place;
 use super::exec::Runner;
 use super::flights::jointloc_run;
 use super::metrics::{self, fmt_ms};
@@ -108,38 +109,34 @@ fn flight(
         commands: Vec::new(),
         failed: None,
     };
-    if !path.join("uav/gt.txt").exists() {
-        let tmp = root.join(format!(".{terrain}-{case}-s{seed}.partial"));
-        let _ = std::fs::remove_dir_all(&tmp);
-        let done = runner.run(
-            &format!("sim-{terrain}-{case}-s{seed}"),
-            &args![
-                "sim",
-                "--terrain",
-                terrain,
-                "--difficulty",
-                "mars",
-                "--altitude",
-                altitude_m,
-                "--sun-azimuth-change-deg",
-                sun_change_deg,
-                "--map-size-m",
-                map_size_m,
-                "--length-m",
-                plan.length_m,
-                "--seed",
-                seed,
-                "--out",
-                tmp.display()
-            ],
-        )?;
+    let sim_args = args![
+        "sim",
+        "--terrain",
+        terrain,
+        "--difficulty",
+        "mars",
+        "--altitude",
+        altitude_m,
+        "--sun-azimuth-change-deg",
+        sun_change_deg,
+        "--map-size-m",
+        map_size_m,
+        "--length-m",
+        plan.length_m,
+        "--seed",
+        seed
+    ];
+    if let Some(done) = sim_into_place(
+        runner,
+        &format!("{terrain}-{case}-s{seed}"),
+        &path,
+        &sim_args,
+    )? {
         row.commands.push(done.command.clone());
         if let Err(reason) = done.outcome {
             row.failed = Some(format!("sim: {reason}"));
             return Ok(row);
         }
-        std::fs::rename(&tmp, &path)
-            .with_context(|| format!("moving {} into place", path.display()))?;
     }
     let gt = Trajectory::read_tum(path.join("uav/gt.txt"), &TumOptions::default())
         .with_context(|| format!("reading {}", path.join("uav/gt.txt").display()))?;

@@ -5,7 +5,7 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::time::Instant;
 
-use anyhow::{Context, bail};
+use anyhow::Context;
 
 use super::journal::Journal;
 use super::paths::{DATASETS, PathNames};
@@ -138,15 +138,6 @@ impl Runner {
         };
         self.done.insert(real, finished.clone());
         Ok(finished)
-    }
-
-    /// Like [`Runner::run`] but a failure is an error (for steps everything else needs).
-    pub fn run_required(&mut self, label: &str, args: &[String]) -> anyhow::Result<Finished> {
-        let done = self.run(label, args)?;
-        if let Err(reason) = &done.outcome {
-            bail!("`{}` failed: {reason}", done.command);
-        }
-        Ok(done)
     }
 }
 
