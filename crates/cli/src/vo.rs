@@ -169,6 +169,19 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         },
         relocalised.len()
     );
+    let loops = system.loops_closed();
+    println!(
+        "loops closed: {}{}",
+        loops.len(),
+        loops
+            .iter()
+            .map(|l| format!(
+                " frame {} (keyframe {} → {}, moved {:.3}, {:.0} ms)",
+                l.frame_index, l.keyframe, l.loop_keyframe, l.correction, l.ms
+            ))
+            .collect::<Vec<_>>()
+            .join(",")
+    );
     println!(
         "map: {} keyframes ({} retired by the cap), {} points",
         system.map().n_keyframes(),

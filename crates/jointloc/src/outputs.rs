@@ -146,6 +146,7 @@ impl JointLoc {
             geo_referenced_from: online.iter().position(|f| f.world_pose().is_some()),
             lost: self.lost_frames(),
             new_maps: self.new_maps(),
+            loops_closed: self.loops_closed(),
             fixes_found: fixes.len(),
             fixes_used: fixes.iter().filter(|f| f.used).count(),
             fixes_inliers: fixes.iter().filter(|f| f.inlier).count(),

@@ -102,6 +102,8 @@ pub struct JointLoc {
     lost_since: Option<f64>,
     /// The world-frame trajectories of the maps set aside after a loss, as known then.
     pub(crate) earlier_maps: Vec<EarlierMap>,
+    /// Loops the SLAM closed, over all its maps.
+    loops_closed: usize,
 }
 
 impl std::fmt::Debug for JointLoc {
@@ -184,6 +186,7 @@ impl JointLoc {
             first_world_timestamp: None,
             lost_since: None,
             earlier_maps: Vec::new(),
+            loops_closed: 0,
         })
     }
 
@@ -220,6 +223,11 @@ impl JointLoc {
     /// Every frame as reported online so far.
     pub fn online(&self) -> &[OnlineFrame] {
         &self.online
+    }
+
+    /// Loops the SLAM closed, over all its maps.
+    pub fn loops_closed(&self) -> usize {
+        self.loops_closed
     }
 
     /// New maps started after tracking losses (see [`JointLocConfig::new_map_after_lost_s`]).
@@ -279,6 +287,7 @@ impl JointLoc {
         let r = self
             .slam
             .process(GrayImageView::from(image), timestamp, altitude)?;
+        self.loops_closed += usize::from(r.loop_closed.is_some());
         self.start_new_map_if_lost_for_good(r.state, timestamp)?;
         let mut absolute = Vec::new();
         if index.is_multiple_of(self.config.fusion_every)

@@ -11,6 +11,7 @@ pub mod error;
 pub mod frame;
 pub mod initializer;
 pub mod local_mapping;
+pub mod loop_closing;
 pub mod map;
 pub mod relocalisation;
 pub mod system;

@@ -17,6 +17,7 @@ use crate::cpu_time::{cpu_ms, thread_cpu_ns};
 use crate::error::{Result, SlamError};
 use crate::frame::{DEFAULT_MAX_OFF_AXIS_DEG, Frame, Undistorter, image_entropy};
 use crate::local_mapping::{GroundModel, LocalMapper, LocalMappingConfig};
+use crate::loop_closing::{LoopCloser, LoopClosingConfig, LoopClosure};
 use crate::map::{GlobalFix, KeyFrameId, Map, RetiredKeyFrame};
 use crate::tracking::{Tracker, TrackingConfig, TrackingState};
 
@@ -27,6 +28,7 @@ pub struct SystemConfig {
     pub orb: OrbConfig,
     pub tracking: TrackingConfig,
     pub local_mapping: LocalMappingConfig,
+    pub loop_closing: LoopClosingConfig,
     /// Sliding-window cap on the keyframes in the map (0: no cap). Once exceeded, the oldest
     /// keyframes outside the newest keyframe's local window are retired with the points only
     /// they observe, so memory stops growing with the flight's length; their poses stay in the
@@ -50,6 +52,7 @@ impl Default for SystemConfig {
             orb: OrbConfig::default(),
             tracking: TrackingConfig::default(),
             local_mapping: LocalMappingConfig::default(),
+            loop_closing: LoopClosingConfig::default(),
             max_keyframes: 200,
             max_off_axis_deg: DEFAULT_MAX_OFF_AXIS_DEG,
         }
@@ -68,6 +71,8 @@ pub struct FrameResult {
     /// The keyframe this frame became, if any.
     pub keyframe: Option<KeyFrameId>,
     pub relocalised: bool,
+    /// The loop this frame's keyframe closed, if any (keyframe poses moved: re-read them).
+    pub loop_closed: Option<LoopClosure>,
 }
 
 /// Per-module wall times, milliseconds (one entry per frame or per keyframe).
@@ -134,6 +139,7 @@ pub struct System {
     map: Map,
     tracker: Tracker,
     mapper: LocalMapper,
+    loop_closer: LoopCloser,
     slam_to_world: Option<Sim3>,
     ground: Option<Arc<dyn GroundModel>>,
     records: Vec<FrameRecord>,
@@ -170,6 +176,7 @@ impl System {
             map,
             tracker: Tracker::new(config.tracking),
             mapper: LocalMapper::new(config.local_mapping),
+            loop_closer: LoopCloser::new(config.loop_closing),
             slam_to_world: None,
             ground: None,
             records: Vec::new(),
@@ -241,11 +248,17 @@ impl System {
         self.map = self.map.successor();
         self.tracker = Tracker::new(self.tracker.config.clone());
         self.mapper = LocalMapper::new(self.mapper.config);
+        self.loop_closer = LoopCloser::new(self.loop_closer.config);
         self.slam_to_world = None;
         self.records.clear();
         self.culled.clear();
         self.retired.clear();
         self.maps_started += 1;
+    }
+
+    /// Loops closed in the current map, in order.
+    pub fn loops_closed(&self) -> &[LoopClosure] {
+        self.loop_closer.closed()
     }
 
     /// Maps started by [`Self::start_new_map`] since the first one.
@@ -326,6 +339,7 @@ impl System {
         let c2 = thread_cpu_ns();
         let mut keyframe = None;
         let mut record = None;
+        let mut loop_closed = None;
         if outcome.initialised {
             self.mapper.add_recent(&self.map);
             keyframe = self.map.last_keyframe().map(|k| k.id);
@@ -353,6 +367,17 @@ impl System {
             let cpu = &mut self.timing.cpu;
             cpu.local_mapping_ms.extend(report.total_cpu_ms);
             cpu.lba_ms.extend(report.lba_cpu_ms);
+            let before = self.map.keyframe(kf).map(|k| k.pose);
+            loop_closed = self.loop_closer.process(
+                &mut self.map,
+                kf,
+                &self.undistorter.ideal,
+                &self.mapper.config.ba,
+                self.slam_to_world.as_ref(),
+            )?;
+            if let (Some(_), Some(before)) = (loop_closed, before) {
+                self.tracker.keyframes_moved(&self.map, &before, kf);
+            }
             self.retire_old_keyframes(kf);
             keyframe = Some(kf);
         }
@@ -376,6 +401,7 @@ impl System {
             inliers: outcome.inliers,
             keyframe,
             relocalised: outcome.relocalised,
+            loop_closed,
         })
     }
 

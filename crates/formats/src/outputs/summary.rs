@@ -60,6 +60,9 @@ pub struct Summary {
     pub lost: usize,
     /// SLAM maps started after a tracking loss.
     pub new_maps: usize,
+    /// Loops the SLAM closed (over all its maps).
+    #[serde(default)]
+    pub loops_closed: usize,
     pub fixes_found: usize,
     pub fixes_used: usize,
     pub fixes_inliers: usize,

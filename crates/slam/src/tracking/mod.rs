@@ -159,6 +159,20 @@ impl Tracker {
         }
     }
 
+    /// Keyframe poses were changed under the tracker (a loop correction): the last frame
+    /// follows its reference keyframe, keeping its pose relative to it as tracked. The motion
+    /// model is relative and stays.
+    pub fn keyframes_moved(&mut self, map: &Map, before: &WorldToCamera, kf: KeyFrameId) {
+        let Some(last) = self.last_frame.as_mut() else {
+            return;
+        };
+        let (Some(pose), Some(k)) = (last.pose, map.keyframe(kf)) else {
+            return;
+        };
+        let relative = pose.0 * before.0.inverse();
+        last.pose = Some(WorldToCamera(renormalized(relative * k.pose.0)));
+    }
+
     /// Tracks `frame` (features extracted, pose unset) against `map`.
     pub fn track(
         &mut self,

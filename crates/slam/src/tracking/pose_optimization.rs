@@ -3,7 +3,7 @@
 //! by its χ² after each round, so that a match wrongly rejected early can come back.
 
 use jointloc_geometry::pnp::{RefineConfig, refine_pose};
-use jointloc_geometry::{PinholeCamera, RobustKernel};
+use jointloc_geometry::{PinholeCamera, RobustKernel, WorldToCamera};
 use nalgebra::{Point2, Point3};
 use serde::{Deserialize, Serialize};
 
@@ -70,10 +70,31 @@ pub fn optimize_pose(
     if index.len() < 3 {
         return 0;
     }
-    let mut outlier = vec![false; index.len()];
-    let mut inliers = index.len();
+    let (refined, outlier) = optimize_pose_against(&world, &pixels, &info, camera, pose, config);
+    pose = refined;
+    let inliers = outlier.iter().filter(|o| !**o).count();
+    frame.pose = Some(pose);
+    for (j, &i) in index.iter().enumerate() {
+        frame.outliers[i] = outlier[j];
+    }
+    inliers
+}
+
+/// The rounds of [`optimize_pose`] on plain correspondences: `world` points seen at `pixels`
+/// with information `info` (1/σ² of the keypoint's level), from the starting `pose`. Returns
+/// the refined pose and, per correspondence, whether it is an outlier at the end.
+pub fn optimize_pose_against(
+    world: &[Point3<f64>],
+    pixels: &[Point2<f64>],
+    info: &[f64],
+    camera: &PinholeCamera,
+    mut pose: WorldToCamera,
+    config: &PoseOptimizationConfig,
+) -> (WorldToCamera, Vec<bool>) {
+    let n = world.len().min(pixels.len()).min(info.len());
+    let mut outlier = vec![false; n];
     for round in 0..config.rounds {
-        let keep: Vec<usize> = (0..index.len()).filter(|&j| !outlier[j]).collect();
+        let keep: Vec<usize> = (0..n).filter(|&j| !outlier[j]).collect();
         if keep.len() < 3 {
             break;
         }
@@ -99,8 +120,8 @@ pub fn optimize_pose(
                 break;
             }
         }
-        inliers = 0;
-        for j in 0..index.len() {
+        let mut inliers = 0;
+        for j in 0..n {
             let chi2 = camera
                 .project(&pose.transform_point(&world[j]))
                 .map_or(f64::INFINITY, |uv| {
@@ -113,9 +134,5 @@ pub fn optimize_pose(
             break;
         }
     }
-    frame.pose = Some(pose);
-    for (j, &i) in index.iter().enumerate() {
-        frame.outliers[i] = outlier[j];
-    }
-    inliers
+    (pose, outlier)
 }
