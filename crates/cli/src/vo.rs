@@ -44,7 +44,8 @@ pub struct Args {
     /// Process only the first N frames.
     #[arg(long, value_name = "N")]
     max_frames: Option<usize>,
-    /// Settings (TOML, `SystemConfig`: max_keyframes, [orb], [tracking], [local_mapping]);
+    /// Settings (TOML, `SystemConfig`: max_keyframes, [orb], [tracking], [local_mapping],
+    /// [loop_closing]);
     /// defaults otherwise.
     #[arg(long, value_name = "PATH")]
     config: Option<PathBuf>,
@@ -55,6 +56,10 @@ pub struct Args {
     /// 0: no cap). Retired keyframes keep their poses in both trajectories.
     #[arg(long, value_name = "N")]
     max_keyframes: Option<usize>,
+    /// Turn loop closing off (overrides the config's `[loop_closing] enabled`): the SLAM as
+    /// it was without it, for comparison.
+    #[arg(long)]
+    no_loop_closing: bool,
     /// Replace existing outputs (`--out`, `--keyframes`, `--map-points`).
     #[arg(long)]
     force: bool,
@@ -84,6 +89,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     };
     if let Some(n) = args.max_keyframes {
         config.max_keyframes = n;
+    }
+    if args.no_loop_closing {
+        config.loop_closing.enabled = false;
     }
     if !args.sequential {
         tracing::info!("threaded mode is not implemented; running sequentially");

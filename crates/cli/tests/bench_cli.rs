@@ -60,6 +60,8 @@ fn writes_the_report_and_refuses_to_replace_it() {
         "| crater | easy | JointLoc, as known at the end (orb) | 1 |",
         "| crater | easy | JointLoc real time (orb, 4× camera rate) | 1 |",
         "| crater | easy | VO only (Sim(3)-aligned) | 1 |",
+        "| crater | easy | VO only, no loop closing (Sim(3)-aligned) | 1 |",
+        "--no-loop-closing",
         "| crater | easy | Absolute only (orb, every 10, 2-D) | 1 |",
         "jointloc vo --dataset",
         "2 cores",

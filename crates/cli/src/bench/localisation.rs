@@ -94,6 +94,31 @@ pub(super) fn localisation_rows(
         None,
     );
     rep.localisation.push(row);
+    // The same SLAM without loop closing, to show what the loops bring.
+    let open_path = out.join("runs").join(format!("{}-vo-open.tum", d.name()));
+    let done = runner.run(
+        &format!("vo-open-{}", d.name()),
+        &args![
+            "vo",
+            "--dataset",
+            d.path.display(),
+            "--out",
+            open_path.display(),
+            "--sequential",
+            "--no-loop-closing",
+            "--force"
+        ],
+    )?;
+    let (row, _) = loc_row(
+        d,
+        "VO only, no loop closing (Sim(3)-aligned)".into(),
+        &done,
+        &open_path,
+        AlignMode::Sim3,
+        false,
+        None,
+    );
+    rep.localisation.push(row);
     // A user's own baselines (ORB-SLAM2/3 …), Sim(3)-aligned as VO.
     for (name, pattern) in &plan.peers {
         let path = std::path::PathBuf::from(pattern.replace("{dataset}", &d.name()));

@@ -160,7 +160,7 @@ impl Report {
              translation error in metres computed as evo does (`jointloc eval`). JointLoc rows are \
              evaluated **without alignment** (its output is in the world frame): the output online \
              (`trajectory.tum`) and, from the same run, as known at the end \
-             (`trajectory-final.tum`, after a global BA with every fix); VO-only rows are \
+             (`trajectory-final.tum`, after a global BA with every fix); VO-only rows (with loop closing, and without it) are \
              Sim(3)-aligned; absolute-only rows are 2-D errors of the fixes. Hz of a JointLoc row is \
              what its frame loop sustains (frames over the time spent processing them; the \
              real-time row replays frames at their timestamps, and its waits do not count); of a \
