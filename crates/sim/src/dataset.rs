@@ -229,6 +229,9 @@ pub struct DatasetSummary {
     pub terrain_height_cells: usize,
     /// UAV pixels whose ray left the terrain (0 unless the margin is too small).
     pub missed_pixels: usize,
+    /// A fisheye's pixels beyond the angle the map covers (72° off axis): the background, as
+    /// intended (not counted in `missed_pixels`).
+    pub beyond_cover_pixels: usize,
     /// Seconds spent per stage: terrain, shading, satellite, frames.
     pub seconds: [f64; 4],
 }
@@ -449,21 +452,22 @@ pub fn write_dataset(
     let exposure = cfg.sensor.exposure_for(&radiance.data);
     let n = poses.len();
     let chunk = 4 * rayon::current_num_threads().max(1);
-    let mut missed = 0usize;
+    let (mut missed, mut beyond_cover) = (0usize, 0usize);
     progress(Stage::Frames, 0, n);
     for start in (0..n).step_by(chunk) {
         let end = (start + chunk).min(n);
-        let misses: Vec<usize> = (start..end)
+        let misses: Vec<(usize, usize)> = (start..end)
             .into_par_iter()
-            .map(|i| -> Result<usize> {
+            .map(|i| -> Result<(usize, usize)> {
                 let frame = renderer.render(&poses[i]);
                 let seed = sub_seed(sub_seed(cfg.seed, stream::FRAME_NOISE), i as u64);
                 let image = expose(&frame.radiance, &cfg.sensor, exposure, seed);
                 write_png(&images_dir.join(frame_name(i)), &image)?;
-                Ok(frame.misses)
+                Ok((frame.misses, frame.beyond_cover))
             })
             .collect::<Result<_>>()?;
-        missed += misses.iter().sum::<usize>();
+        missed += misses.iter().map(|m| m.0).sum::<usize>();
+        beyond_cover += misses.iter().map(|m| m.1).sum::<usize>();
         progress(Stage::Frames, end, n);
     }
     seconds[3] = t.elapsed().as_secs_f64();
@@ -471,6 +475,12 @@ pub fn write_dataset(
         tracing::warn!(
             missed,
             "UAV pixels saw past the terrain edge (margin too small?)"
+        );
+    }
+    if beyond_cover > 0 {
+        tracing::info!(
+            pixels = beyond_cover,
+            "fisheye pixels beyond the map's covered angle show the background, as intended"
         );
     }
     Ok(DatasetSummary {
@@ -484,6 +494,7 @@ pub fn write_dataset(
         terrain_width_cells: terrain.height.width,
         terrain_height_cells: terrain.height.height,
         missed_pixels: missed,
+        beyond_cover_pixels: beyond_cover,
         seconds,
     })
 }

@@ -327,14 +327,22 @@ pub struct UavRenderer<'a> {
     rays: Vec<[f64; 2]>,
     /// Radiance of pixels whose ray misses the terrain.
     background: f32,
+    /// `tan` of the angle from the vertical that the map's margin covers: a fisheye's rays
+    /// beyond it (and those at or beyond 90° off axis) are expected to see the background.
+    /// Infinite for a pinhole.
+    covered_tan: f64,
 }
 
 /// A rendered frame of linear radiance.
 #[derive(Debug, Clone)]
 pub struct RenderedFrame {
     pub radiance: Grid<f32>,
-    /// Pixels whose ray left the terrain (filled with the background radiance).
+    /// Pixels whose ray left the terrain inside the covered angle (filled with the
+    /// background radiance): the map's margin was too small.
     pub misses: usize,
+    /// A fisheye's pixels beyond the angle the map covers ([`crate::config::FISHEYE_MAP_ANGLE_DEG`])
+    /// that saw the background, as intended.
+    pub beyond_cover: usize,
 }
 
 impl<'a> UavRenderer<'a> {
@@ -364,12 +372,18 @@ impl<'a> UavRenderer<'a> {
             })
             .collect();
         let background = mean(&radiance.data);
+        let covered_tan = if matches!(camera.distortion, Some(Distortion::KannalaBrandt(_))) {
+            crate::config::FISHEYE_MAP_ANGLE_DEG.to_radians().tan()
+        } else {
+            f64::INFINITY
+        };
         Ok(Self {
             tracer: HeightfieldTracer::new(terrain)?,
             radiance,
             camera,
             rays,
             background,
+            covered_tan,
         })
     }
 
@@ -446,30 +460,41 @@ impl<'a> UavRenderer<'a> {
         let origin = pose.centre();
         let (z_max, start_level) = self.frame_start(pose);
         let mut image = Grid::filled(w, h, self.background);
-        let misses: usize = image
+        let fisheye = self.covered_tan.is_finite();
+        let (misses, beyond_cover) = image
             .data
             .par_chunks_mut(w)
             .enumerate()
             .map(|(v, row)| {
-                let mut misses = 0;
+                let (mut misses, mut beyond) = (0, 0);
                 for (u, out) in row.iter_mut().enumerate() {
                     let [x, y] = self.rays[v * w + u];
                     if x.is_nan() {
-                        misses += 1;
+                        // A fisheye pixel at or beyond 90° off axis; otherwise a lens model
+                        // that cannot be inverted there.
+                        if fisheye {
+                            beyond += 1
+                        } else {
+                            misses += 1
+                        }
                         continue;
                     }
                     let dir = r * Vector3::new(x, y, 1.0);
                     match self.tracer.cast_from(&origin, &dir, z_max, start_level).0 {
                         Some(hit) => *out = self.radiance.bilinear(hit.cell.0, hit.cell.1),
+                        // Past the covered angle from the vertical (the map's margin is
+                        // set in world terms, and the camera may be tilted).
+                        None if dir.xy().norm() > -dir.z * self.covered_tan => beyond += 1,
                         None => misses += 1,
                     }
                 }
-                misses
+                (misses, beyond)
             })
-            .sum();
+            .reduce(|| (0, 0), |a, b| (a.0 + b.0, a.1 + b.1));
         RenderedFrame {
             radiance: image,
             misses,
+            beyond_cover,
         }
     }
 }

@@ -89,6 +89,7 @@ fn centroid(
     (su / sw, sv / sw, sw)
 }
 
+#[derive(Debug)]
 struct Case {
     difficulty: Difficulty,
     distortion: Option<Distortion>,
@@ -176,8 +177,13 @@ fn run_case(case: &Case, tmp: &Path) {
     }
 
     let (a, b) = (tmp.join("with"), tmp.join("without"));
-    write_dataset(&cfg, &plan, &marked, &a, &mut |_, _, _| {}).unwrap();
+    let summary = write_dataset(&cfg, &plan, &marked, &a, &mut |_, _, _| {}).unwrap();
     write_dataset(&cfg, &plan, &plain, &b, &mut |_, _, _| {}).unwrap();
+    // The map's margin covers every pixel it should; only a fisheye's rays beyond the covered
+    // angle see the background.
+    assert_eq!(summary.missed_pixels, 0, "{case:?}");
+    let fisheye = matches!(case.distortion, Some(Distortion::KannalaBrandt(_)));
+    assert_eq!(summary.beyond_cover_pixels > 0, fisheye, "{case:?}");
 
     // Everything below comes from the files.
     let cam = read_camera_yaml(&a.join("camera.yaml")).unwrap().camera;
