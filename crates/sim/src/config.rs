@@ -22,6 +22,14 @@ use crate::trajectory::TrajectoryConfig;
 /// [`SimConfig::effective_margin_m`]); the SLAM keeps keypoints up to 70° by default.
 pub const FISHEYE_MAP_ANGLE_DEG: f64 = 72.0;
 
+/// `tan` of the angle up to which the map covers `camera`'s view: [`FISHEYE_MAP_ANGLE_DEG`]
+/// for a fisheye, `None` (the whole view) otherwise. The map's margin and the renderer's
+/// count of expected background pixels both follow it.
+pub fn fisheye_cover_tan(camera: &PinholeCamera) -> Option<f64> {
+    matches!(camera.distortion, Some(Distortion::KannalaBrandt(_)))
+        .then(|| FISHEYE_MAP_ANGLE_DEG.to_radians().tan())
+}
+
 /// The simulator's fisheye lens: TUM-VI's cam0 Kannala-Brandt coefficients (a real 195°
 /// fisheye calibration, as in ORB-SLAM3's `TUM-VI.yaml`): within 0.3 % of pure equidistant
 /// up to 70° off axis.
@@ -382,7 +390,8 @@ impl SimConfig {
             (-0.5, h - 0.5),
             (w - 0.5, h - 0.5),
         ];
-        let fisheye = matches!(cam.distortion, Some(Distortion::KannalaBrandt(_)));
+        let cover_tan = fisheye_cover_tan(cam);
+        let fisheye = cover_tan.is_some();
         let border: Vec<(f64, f64)> = if fisheye {
             let (nw, nh) = (cam.width as usize, cam.height as usize);
             (0..=nw)
@@ -402,11 +411,7 @@ impl SimConfig {
             .fold(0.0, f64::max);
         // A fisheye's periphery sees the ground at grazing angles tens of metres away: the map
         // covers it up to FISHEYE_MAP_ANGLE_DEG, beyond that the frame shows the background.
-        let corner_tan = if fisheye {
-            corner_tan.min(FISHEYE_MAP_ANGLE_DEG.to_radians().tan())
-        } else {
-            corner_tan
-        };
+        let corner_tan = cover_tan.map_or(corner_tan, |c| corner_tan.min(c));
         let tilt = (corner_tan.atan() + 2f64.to_radians())
             .min(80f64.to_radians())
             .tan();

@@ -456,7 +456,7 @@ pub fn write_dataset(
     progress(Stage::Frames, 0, n);
     for start in (0..n).step_by(chunk) {
         let end = (start + chunk).min(n);
-        let misses: Vec<(usize, usize)> = (start..end)
+        let counts: Vec<(usize, usize)> = (start..end)
             .into_par_iter()
             .map(|i| -> Result<(usize, usize)> {
                 let frame = renderer.render(&poses[i]);
@@ -466,8 +466,10 @@ pub fn write_dataset(
                 Ok((frame.misses, frame.beyond_cover))
             })
             .collect::<Result<_>>()?;
-        missed += misses.iter().map(|m| m.0).sum::<usize>();
-        beyond_cover += misses.iter().map(|m| m.1).sum::<usize>();
+        for (m, b) in counts {
+            missed += m;
+            beyond_cover += b;
+        }
         progress(Stage::Frames, end, n);
     }
     seconds[3] = t.elapsed().as_secs_f64();

@@ -372,11 +372,7 @@ impl<'a> UavRenderer<'a> {
             })
             .collect();
         let background = mean(&radiance.data);
-        let covered_tan = if matches!(camera.distortion, Some(Distortion::KannalaBrandt(_))) {
-            crate::config::FISHEYE_MAP_ANGLE_DEG.to_radians().tan()
-        } else {
-            f64::INFINITY
-        };
+        let covered_tan = crate::config::fisheye_cover_tan(&camera).unwrap_or(f64::INFINITY);
         Ok(Self {
             tracer: HeightfieldTracer::new(terrain)?,
             radiance,
