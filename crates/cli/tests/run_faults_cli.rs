@@ -94,7 +94,8 @@ fn a_wrong_first_fix_costs_little_seed_32() {
 }
 
 /// A blinded camera (6 s of grey from 8 s): tracking is lost, and after 5 s a new map starts,
-/// is geo-referenced again by the fixes, and both maps are in the outputs.
+/// is geo-referenced again by the fixes, the first map is merged into it, and both parts are
+/// in the outputs.
 fn a_blinded_camera_starts_a_new_map(seed: &str) {
     let rmse = base(seed).summary["ape_translation"]["rmse"]
         .as_f64()
@@ -103,6 +104,9 @@ fn a_blinded_camera_starts_a_new_map(seed: &str) {
     let blind = dir.path().join("blind");
     let (stdout, b) = run_orb(seed, &blind, &["--sequential", "--blind", "8:6"]);
     assert_eq!(b["new_maps"].as_u64(), Some(1), "seed {seed}: {stdout}");
+    // Both maps are tied to the world: the first is merged into the second, one map at the end.
+    assert_eq!(b["maps_merged"].as_u64(), Some(1), "seed {seed}: {stdout}");
+    assert_eq!(b["maps_at_end"].as_u64(), Some(1), "seed {seed}: {stdout}");
     // (The first map's keyframes may all predate its geo-referencing at 4-6 s.)
     for (file, before) in [
         ("trajectory.tum", true),

@@ -76,6 +76,14 @@ pub struct JointLocConfig {
     /// old map never saw, so relocalisation rarely ends a long loss; 5 s is 5 m at 1 m/s,
     /// half the camera's footprint at 10 m.
     pub new_map_after_lost_s: f64,
+    /// A map set aside after a loss is merged back into the new one once the new one's
+    /// alignment rests on this many fixes of its own (0: never; the outputs then concatenate
+    /// the maps). Both maps are tied to the world, so their alignments give the similarity
+    /// between them (`crate::map_merge`). 20, the alignment's window: from then on the
+    /// window holds no fix of the earlier map, whose placement rests on the new map's early
+    /// alignment. Maps not merged by the end of the flight are merged then, through the last
+    /// alignment.
+    pub merge_maps_after_fixes: usize,
     /// While there is no world pose (tracking lost, a new map not yet geo-referenced), the
     /// search prior is the last world pose carried forward at the last ground velocity, for
     /// at most this many seconds (0: the last world pose as it is). A UAV keeps flying: 12 s
@@ -122,6 +130,7 @@ impl Default for JointLocConfig {
             sweep_after_failures: 2,
             sweep_after_failures_aligned: 10,
             new_map_after_lost_s: 5.0,
+            merge_maps_after_fixes: 20,
             dead_reckoning_max_s: 20.0,
             max_altitude_rate_mps: 15.0,
             seed: 0,

@@ -40,6 +40,8 @@ pub(crate) struct EndOutputs {
 pub(crate) struct EarlierMap {
     pub(crate) frames: Option<Trajectory>,
     pub(crate) keyframes: Option<Trajectory>,
+    /// What merging it into the current map needs; `None` when it was never geo-referenced.
+    pub(crate) merge: Option<crate::map_merge::Mergeable>,
 }
 
 impl JointLoc {
@@ -168,32 +170,39 @@ impl JointLoc {
         aligner: &mut CentredAligner<'_>,
         refined: Option<&RefinedKeyFrames>,
     ) -> Result<Option<Trajectory>> {
-        let Some(t0) = self.first_world_timestamp else {
-            return Ok(None);
-        };
-        let keep = slam.trajectory.timestamps.partition_point(|&t| t < t0);
-        if keep == slam.trajectory.len() {
+        if self.first_world_timestamp.is_none() {
             return Ok(None);
         }
-        let mut world = |r: &Referenced<'_>, from: usize| -> Vec<CameraToWorld> {
-            let t = r.trajectory;
-            (from..t.len())
-                .map(|i| {
-                    let (ts, p) = (t.timestamps[i], &t.poses[i]);
-                    let s = aligner.sim_at(ts);
-                    match refined {
-                        Some(refined) => {
-                            let reference = r.keyframes.and_then(|k| k.get(i).copied());
-                            refined.world_pose(ts, &s, p, reference)
+        let keep: Vec<usize> = (0..slam.trajectory.len())
+            .filter(|&i| self.reported_at_end(slam.trajectory.timestamps[i]))
+            .collect();
+        if keep.is_empty() {
+            return Ok(None);
+        }
+        let mut world =
+            |r: &Referenced<'_>, indices: &mut dyn Iterator<Item = usize>| -> Vec<CameraToWorld> {
+                let t = r.trajectory;
+                indices
+                    .map(|i| {
+                        let (ts, p) = (t.timestamps[i], &t.poses[i]);
+                        let s = aligner.sim_at(ts);
+                        match refined {
+                            Some(refined) => {
+                                let reference = r.keyframes.and_then(|k| k.get(i).copied());
+                                refined.world_pose(ts, &s, p, reference)
+                            }
+                            None => s.transform_pose(p),
                         }
-                        None => s.transform_pose(p),
-                    }
-                })
-                .collect()
-        };
-        let mut poses = world(slam, keep);
-        let frame_poses = world(frames, 0);
-        let (stamps, frames) = (&slam.trajectory.timestamps[keep..], frames.trajectory);
+                    })
+                    .collect()
+            };
+        let mut poses = world(slam, &mut keep.iter().copied());
+        let frame_poses = world(frames, &mut (0..frames.trajectory.len()));
+        let stamps: Vec<f64> = keep
+            .iter()
+            .map(|&i| slam.trajectory.timestamps[i])
+            .collect();
+        let frames = frames.trajectory;
         let readings: Vec<Option<f64>> = frames
             .timestamps
             .iter()
@@ -210,7 +219,7 @@ impl JointLoc {
             &readings,
             self.altitude.ground(),
             self.altitude.window_s(),
-            stamps,
+            &stamps,
         );
         for (p, dz) in poses.iter_mut().zip(shifts) {
             if let Some(dz) = dz {
@@ -218,8 +227,7 @@ impl JointLoc {
             }
         }
         Ok(Some(
-            Trajectory::new(stamps.to_vec(), poses)
-                .map_err(jointloc_slam::error::SlamError::from)?,
+            Trajectory::new(stamps, poses).map_err(jointloc_slam::error::SlamError::from)?,
         ))
     }
 
@@ -237,47 +245,52 @@ impl JointLoc {
             .collect();
         timed.sort_by(|x, y| x.0.total_cmp(&y.0));
         let (times, ties): (Vec<f64>, Vec<Tie>) = timed.into_iter().unzip();
-        let window = match self.config.alignment_window {
-            0 => ties.len(),
-            w => w.min(ties.len()),
-        };
+        let mut part_ends: Vec<f64> = self.merged_spans.iter().map(|s| s.1).collect();
+        part_ends.sort_by(f64::total_cmp);
         CentredAligner {
             system: self,
             times,
             ties,
-            window,
+            window: self.config.alignment_window,
+            part_ends,
             fits: BTreeMap::new(),
         }
     }
 }
 
-/// The trajectories one after the other (each later than the one before); `None` when all
-/// are.
+/// The trajectories merged in time; `None` when all are.
 fn concat<'a>(parts: impl Iterator<Item = Option<&'a Trajectory>>) -> Result<Option<Trajectory>> {
-    let (mut stamps, mut poses) = (Vec::new(), Vec::new());
+    let mut timed: Vec<(f64, CameraToWorld)> = Vec::new();
     let mut any = false;
     for t in parts.flatten() {
         any = true;
-        stamps.extend_from_slice(&t.timestamps);
-        poses.extend_from_slice(&t.poses);
+        timed.extend(t.timestamps.iter().copied().zip(t.poses.iter().copied()));
     }
     if !any {
         return Ok(None);
     }
+    // A map merged into the current one holds frames from before a map that was not.
+    timed.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let (stamps, poses) = timed.into_iter().unzip();
     Ok(Some(
         Trajectory::new(stamps, poses).map_err(jointloc_slam::error::SlamError::from)?,
     ))
 }
 
 /// Maps SLAM-frame poses to the world through the alignment of the fixes nearest in time
-/// (one fit per window start: windows change only between fixes); the latest alignment where
-/// a window has no fit.
+/// (one fit per window: windows change only between fixes); the latest alignment where a
+/// window has no fit. A window stays within one part of a merged map (the time up to the end
+/// of a map merged into it, or after the last): the parts are placed relative to each other
+/// only by their own alignments, so a window across the seam would fit neither.
 struct CentredAligner<'a> {
     system: &'a JointLoc,
     times: Vec<f64>,
     ties: Vec<Tie>,
+    /// Fixes per window (0: all of the part).
     window: usize,
-    fits: BTreeMap<usize, Option<Sim3>>,
+    /// Last times of the maps merged into this one, ascending.
+    part_ends: Vec<f64>,
+    fits: BTreeMap<(usize, usize), Option<Sim3>>,
 }
 
 impl CentredAligner<'_> {
@@ -287,14 +300,29 @@ impl CentredAligner<'_> {
         if self.ties.is_empty() {
             return latest.unwrap_or_else(Sim3::identity);
         }
+        // The part of `timestamp` as a range of ties (times ascending).
+        let part = self.part_ends.partition_point(|&end| end < timestamp);
+        let first = match part {
+            0 => 0,
+            k => self.times.partition_point(|&x| x <= self.part_ends[k - 1]),
+        };
+        let last = match self.part_ends.get(part) {
+            Some(&end) => self.times.partition_point(|&x| x <= end),
+            None => self.times.len(),
+        };
+        if first >= last {
+            return latest.unwrap_or_else(Sim3::identity);
+        }
+        let window = match self.window {
+            0 => last - first,
+            w => w.min(last - first),
+        };
         let at = self.times.partition_point(|&x| x < timestamp);
-        let start = at
-            .saturating_sub(self.window / 2)
-            .min(self.ties.len() - self.window);
-        let (system, ties, window) = (self.system, &self.ties, self.window);
+        let start = at.saturating_sub(window / 2).clamp(first, last - window);
+        let (system, ties) = (self.system, &self.ties);
         let fit = *self
             .fits
-            .entry(start)
+            .entry((start, window))
             .or_insert_with(|| system.fit_ties(ties, start..start + window).map(|f| f.sim3));
         fit.or(latest).unwrap_or_else(Sim3::identity)
     }

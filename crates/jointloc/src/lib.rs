@@ -48,6 +48,7 @@ pub mod faults;
 pub mod final_ba;
 pub mod fix_source;
 pub mod ground;
+mod map_merge;
 pub mod observer;
 pub mod outputs;
 mod records;

@@ -126,6 +126,9 @@ impl JointLoc {
     /// gives everything the run produced.
     pub fn finish(mut self) -> Result<Outputs> {
         self.flush()?;
+        if self.merge_earlier_maps(true) {
+            self.refit();
+        }
         let end = self.end_outputs()?;
         let n = self.frames();
         let timing = self.timing();
@@ -146,6 +149,8 @@ impl JointLoc {
             geo_referenced_from: online.iter().position(|f| f.world_pose().is_some()),
             lost: self.lost_frames(),
             new_maps: self.new_maps(),
+            maps_merged: self.maps_merged(),
+            maps_at_end: self.maps_at_end(),
             loops_closed: self.loops_closed(),
             fixes_found: fixes.len(),
             fixes_used: fixes.iter().filter(|f| f.used).count(),

@@ -30,6 +30,7 @@ use crate::dead_reckoning::{self, GroundTrack};
 use crate::end_outputs::EarlierMap;
 use crate::error::Result;
 use crate::fix_source::{FixRequest, FixSource, Located};
+use crate::map_merge::Mergeable;
 use crate::observer::Observer;
 pub use crate::records::{FixRecord, FusedFrame, FusionTiming};
 use crate::terrain_shift::TerrainCorrection;
@@ -104,6 +105,10 @@ pub struct JointLoc {
     pub(crate) earlier_maps: Vec<EarlierMap>,
     /// Loops the SLAM closed, over all its maps.
     loops_closed: usize,
+    /// The spans of time (first, last world pose) of the maps merged into the current one.
+    pub(crate) merged_spans: Vec<(f64, f64)>,
+    /// Maps set aside after a loss and merged back ([`crate::map_merge`]).
+    pub(crate) maps_merged: usize,
 }
 
 impl std::fmt::Debug for JointLoc {
@@ -187,6 +192,8 @@ impl JointLoc {
             lost_since: None,
             earlier_maps: Vec::new(),
             loops_closed: 0,
+            merged_spans: Vec::new(),
+            maps_merged: 0,
         })
     }
 
@@ -232,7 +239,19 @@ impl JointLoc {
 
     /// New maps started after tracking losses (see [`JointLocConfig::new_map_after_lost_s`]).
     pub fn new_maps(&self) -> usize {
-        self.earlier_maps.len()
+        self.slam.maps_started()
+    }
+
+    /// Maps set aside after a loss and merged back into the current one
+    /// ([`JointLocConfig::merge_maps_after_fixes`]).
+    pub fn maps_merged(&self) -> usize {
+        self.maps_merged
+    }
+
+    /// Maps the outputs written at the end come from: the current one and those set aside
+    /// and not merged.
+    pub fn maps_at_end(&self) -> usize {
+        1 + self.earlier_maps.len()
     }
 
     pub fn slam(&self) -> &System {
@@ -415,17 +434,31 @@ impl JointLoc {
             return Ok(());
         }
         let end = self.map_end_outputs()?;
+        tracing::warn!(
+            lost_s = timestamp - since,
+            maps = self.slam.maps_started() + 2,
+            "tracking lost without relocalisation: starting a new map"
+        );
+        let slam_index = self.slam.start_new_map();
+        let ties = std::mem::take(&mut self.ties);
+        let mut spans = std::mem::take(&mut self.merged_spans);
+        let merge = match (&self.alignment, self.first_world_timestamp) {
+            (Some(a), Some(first)) => {
+                spans.push((first, since));
+                Some(Mergeable {
+                    slam_index,
+                    slam_to_world: a.sim3,
+                    ties,
+                    spans,
+                })
+            }
+            _ => None,
+        };
         self.earlier_maps.push(EarlierMap {
             frames: end.frames,
             keyframes: end.keyframes,
+            merge,
         });
-        tracing::warn!(
-            lost_s = timestamp - since,
-            maps = self.earlier_maps.len() + 1,
-            "tracking lost without relocalisation: starting a new map"
-        );
-        self.slam.start_new_map();
-        self.ties.clear();
         self.alignment = None;
         self.provisional = None;
         self.first_world_timestamp = None;

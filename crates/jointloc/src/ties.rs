@@ -145,6 +145,9 @@ impl JointLoc {
         self.slam.set_slam_to_world(Some(s));
         self.alignment = Some(fitted);
         self.correct_by_terrain(first);
+        if self.merge_earlier_maps(false) {
+            self.refit();
+        }
     }
 
     /// Where the window's map points sit on the elevation model through the new alignment:

@@ -179,6 +179,17 @@ fn a_long_loss_starts_a_new_map_which_the_fixes_geo_reference_again() {
     assert!(end.timestamps.last().is_some_and(|&t| t > 35.0));
     let e = rmse(&ground_truth(flight()), end);
     assert!(e < 0.3, "end rmse {e:.3} m over both maps");
+    // Both maps were geo-referenced: the end outputs come from one merged map, without the
+    // blinded frames or the new map's frames before its first world pose.
+    let s = &outputs.summary;
+    assert_eq!((s.maps_merged, s.maps_at_end), (s.new_maps, 1), "{s:?}");
+    let first_again = again.unwrap();
+    assert!(
+        !end.timestamps
+            .iter()
+            .any(|&t| (15.0..first_again).contains(&t)),
+        "end outputs inside the loss"
+    );
 }
 
 /// Counts what it is shown.

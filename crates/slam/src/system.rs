@@ -128,6 +128,16 @@ struct FrameRecord {
     relative: Isometry3<f64>,
 }
 
+/// A map set aside by [`System::start_new_map`], with what its trajectories need, until it is
+/// merged back ([`System::merge_set_aside`]).
+#[derive(Debug)]
+struct SetAside {
+    map: Map,
+    records: Vec<FrameRecord>,
+    culled: BTreeMap<KeyFrameId, (KeyFrameId, Isometry3<f64>)>,
+    retired: BTreeMap<KeyFrameId, RetiredKeyFrame>,
+}
+
 /// Monocular SLAM, one frame at a time.
 #[derive(Debug)]
 pub struct System {
@@ -151,6 +161,8 @@ pub struct System {
     next_index: usize,
     last_timestamp: Option<f64>,
     maps_started: usize,
+    /// Maps set aside after losses and not merged back, oldest first; `None` once merged.
+    set_aside: Vec<Option<SetAside>>,
 }
 
 impl System {
@@ -187,6 +199,7 @@ impl System {
             next_index: 0,
             last_timestamp: None,
             maps_started: 0,
+            set_aside: Vec::new(),
         })
     }
 
@@ -237,23 +250,81 @@ impl System {
     /// SLAM frame: for a loss that relocalisation cannot end (a UAV lost over ground its map
     /// never saw). Keyframe and point ids continue, so no id of the old map names anything in
     /// the new one. The old map's frames and keyframes leave [`Self::trajectory`] and
-    /// [`Self::keyframe_trajectory`]: a caller that wants them reads them first.
-    pub fn start_new_map(&mut self) {
+    /// [`Self::keyframe_trajectory`] until [`Self::merge_set_aside`] brings them back: a
+    /// caller that wants them otherwise reads them first. Returns the index of the map set
+    /// aside (its order among those set aside).
+    pub fn start_new_map(&mut self) -> usize {
         tracing::info!(
             keyframes = self.map.n_keyframes(),
             points = self.map.n_points(),
             frame = self.next_index,
             "new map: the old one is set aside"
         );
-        self.map = self.map.successor();
+        let successor = self.map.successor();
+        self.set_aside.push(Some(SetAside {
+            map: std::mem::replace(&mut self.map, successor),
+            records: std::mem::take(&mut self.records),
+            culled: std::mem::take(&mut self.culled),
+            retired: std::mem::take(&mut self.retired),
+        }));
         self.tracker = Tracker::new(self.tracker.config.clone());
         self.mapper = LocalMapper::new(self.mapper.config);
         self.loop_closer = LoopCloser::new(self.loop_closer.config);
         self.slam_to_world = None;
-        self.records.clear();
-        self.culled.clear();
-        self.retired.clear();
         self.maps_started += 1;
+        self.set_aside.len() - 1
+    }
+
+    /// Merges the map set aside as `index` ([`Self::start_new_map`]'s return) into the current
+    /// one, `to_current` taking its SLAM frame to the current map's: its keyframes, points,
+    /// frames and retired keyframes come back, transformed (see [`Map::absorb`]). `Ok(None)`
+    /// when there is no such map or it was merged already.
+    pub fn merge_set_aside(
+        &mut self,
+        index: usize,
+        to_current: &Sim3,
+    ) -> Result<Option<crate::map::MergeReport>> {
+        let Some(slot) = self.set_aside.get_mut(index) else {
+            return Ok(None);
+        };
+        let Some(part) = slot.take() else {
+            return Ok(None);
+        };
+        let s = *to_current;
+        if let Err(e) = self.map.check_absorb(&part.map, &s) {
+            *slot = Some(part);
+            return Err(e);
+        }
+        let report = self.map.absorb(part.map, &s)?;
+        // Rigid offsets in SLAM units scale with the map.
+        let scaled = |mut iso: Isometry3<f64>| {
+            iso.translation.vector *= s.scale;
+            iso
+        };
+        let mut records: Vec<FrameRecord> = part
+            .records
+            .into_iter()
+            .map(|r| FrameRecord {
+                relative: scaled(r.relative),
+                ..r
+            })
+            .chain(self.records.drain(..))
+            .collect();
+        records.sort_by(|a, b| a.timestamp.total_cmp(&b.timestamp));
+        self.records = records;
+        for (id, (parent, rel)) in part.culled {
+            self.culled.insert(id, (parent, scaled(rel)));
+        }
+        for (id, mut r) in part.retired {
+            r.pose = s.transform_pose(&r.pose.inverse()).inverse();
+            self.retired.insert(id, r);
+        }
+        Ok(Some(report))
+    }
+
+    /// Maps set aside by [`Self::start_new_map`] and not merged back.
+    pub fn maps_set_aside(&self) -> usize {
+        self.set_aside.iter().flatten().count()
     }
 
     /// Loops closed in the current map, in order.

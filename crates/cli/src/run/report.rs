@@ -12,12 +12,14 @@ pub(super) fn print(outputs: &Outputs) {
     let s = &outputs.summary;
     let t = &outputs.timing;
     println!(
-        "{} frames ({:.1} Hz, {}); {} lost; {} new maps after losses; {} loops closed; geo-referenced from frame {}; {} world poses written",
+        "{} frames ({:.1} Hz, {}); {} lost; {} new maps after losses, {} merged back ({} at the end); {} loops closed; geo-referenced from frame {}; {} world poses written",
         s.frames,
         s.hz,
         s.mode,
         s.lost,
         s.new_maps,
+        s.maps_merged,
+        s.maps_at_end,
         s.loops_closed,
         s.geo_referenced_from
             .map_or("-".into(), |i: usize| i.to_string()),

@@ -60,6 +60,12 @@ pub struct Summary {
     pub lost: usize,
     /// SLAM maps started after a tracking loss.
     pub new_maps: usize,
+    /// Of the maps set aside at those losses, those merged back into a later map.
+    #[serde(default)]
+    pub maps_merged: usize,
+    /// Maps the end outputs come from (1: one consistent map).
+    #[serde(default)]
+    pub maps_at_end: usize,
     /// Loops the SLAM closed (over all its maps).
     #[serde(default)]
     pub loops_closed: usize,

@@ -7,6 +7,7 @@
 mod ids;
 mod keyframe;
 mod map_point;
+mod merge;
 
 use std::collections::BTreeMap;
 
@@ -16,6 +17,7 @@ use nalgebra::Vector3;
 pub use ids::{KeyFrameId, MapPointId};
 pub use keyframe::{GlobalFix, KeyFrame, RetiredKeyFrame};
 pub use map_point::MapPoint;
+pub use merge::MergeReport;
 
 /// Covisibility edges need at least this many shared points (ORB-SLAM2: 15).
 pub const COVISIBILITY_THRESHOLD: usize = 15;

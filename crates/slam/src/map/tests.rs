@@ -265,3 +265,52 @@ fn retiring_a_keyframe_keeps_shared_points_and_makes_its_children_roots() {
     assert_eq!(map.keyframe(d).unwrap().parent(), Some(b));
     assert!(map.keyframe(b).unwrap().children().contains(&d));
 }
+
+#[test]
+fn absorbing_an_earlier_map_moves_it_through_the_similarity() {
+    use jointloc_geometry::{Sim3, WorldToCamera};
+    use nalgebra::{Point3, UnitQuaternion};
+    let (earlier, [a, _, c]) = three_keyframe_map(40);
+    let mut current = earlier.successor();
+    let d = current.insert_keyframe(keyframe(30, 5.0, 50));
+    let fresh = current
+        .insert_point(Vector3::new(5.0, 0.0, 10.0), d, 0)
+        .unwrap();
+    let s = Sim3::new(
+        2.0,
+        UnitQuaternion::from_euler_angles(0.1, -0.2, 0.7),
+        Vector3::new(3.0, -1.0, 0.5),
+    );
+    let before_centre = earlier.keyframe(c).unwrap().pose.inverse().centre();
+    let point = *earlier.keyframe(a).unwrap().points[3].as_ref().unwrap();
+    let before_point = earlier.point(point).unwrap().clone();
+    let (n_kf, n_pts) = (earlier.n_keyframes(), earlier.n_points());
+    let report = current.absorb(earlier.clone(), &s).unwrap();
+    assert_eq!((report.keyframes, report.points), (n_kf, n_pts));
+    assert_eq!(current.n_keyframes(), n_kf + 1);
+    assert_eq!(current.n_points(), n_pts + 1);
+    // Keyframe centres and points moved by s; camera-frame coordinates of a point only scaled.
+    let centre = current.keyframe(c).unwrap().pose.inverse().centre();
+    assert!((centre - s.transform_point(&before_centre)).norm() < 1e-9);
+    let moved = current.point(point).unwrap();
+    let want = s.transform_point(&Point3::from(before_point.position));
+    assert!((moved.position - want.coords).norm() < 1e-9);
+    assert!((moved.max_distance - 2.0 * before_point.max_distance).abs() < 1e-9);
+    let in_cam = |pose: &WorldToCamera, p: &Vector3<f64>| pose.0.transform_point(&Point3::from(*p));
+    let before_cam = in_cam(&earlier.keyframe(a).unwrap().pose, &before_point.position);
+    let after_cam = in_cam(&current.keyframe(a).unwrap().pose, &moved.position);
+    assert!((after_cam.coords - 2.0 * before_cam.coords).norm() < 1e-9);
+    // One spanning tree; new ids continue after both maps'.
+    assert_eq!(current.keyframe(d).unwrap().parent(), Some(c));
+    assert!(current.point(fresh).is_some());
+    let next = current.insert_keyframe(keyframe(40, 6.0, 10));
+    assert!(next > d);
+    // A map that shares ids, or a similarity that is not one, is refused and changes nothing.
+    let before = (current.n_keyframes(), current.n_points());
+    assert!(current.absorb(earlier.clone(), &s).is_err());
+    let mut other = earlier.successor();
+    let bad = Sim3::new(f64::NAN, UnitQuaternion::identity(), Vector3::zeros());
+    assert!(other.absorb(earlier, &bad).is_err());
+    assert_eq!((current.n_keyframes(), current.n_points()), before);
+    assert_eq!(other.n_keyframes(), 0);
+}
