@@ -120,7 +120,11 @@ impl JointLocBuilder {
         } else {
             source
         };
-        let slam = System::new(self.camera, config.slam.clone())?;
+        // The global BA after a loop runs on its own thread only where nothing has to be
+        // reproducible: in the threaded mode (tracking must not stall for it).
+        let mut slam_config = config.slam.clone();
+        slam_config.loop_closing.global_ba_thread = self.mode == Mode::Threaded;
+        let slam = System::new(self.camera, slam_config)?;
         JointLoc::assemble(slam, source, self.mode, ground, self.observers, config)
     }
 }

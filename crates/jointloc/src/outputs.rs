@@ -126,6 +126,7 @@ impl JointLoc {
     /// gives everything the run produced.
     pub fn finish(mut self) -> Result<Outputs> {
         self.flush()?;
+        self.slam.finish_background_work()?;
         if self.merge_earlier_maps(true) {
             self.refit();
         }

@@ -387,6 +387,7 @@ impl System {
     ) -> Result<FrameResult> {
         let index = self.next_index;
         self.check_frame(image.width(), image.height(), timestamp, altitude)?;
+        self.apply_global_ba(false)?;
         self.next_index += 1;
         self.last_timestamp = Some(timestamp);
         let t0 = Instant::now();
@@ -474,6 +475,40 @@ impl System {
             relocalised: outcome.relocalised,
             loop_closed,
         })
+    }
+
+    /// Applies a global BA that finished on its thread (`wait`: waits for one in flight; see
+    /// [`LoopClosingConfig::global_ba_thread`](crate::loop_closing::LoopClosingConfig)), and
+    /// moves the tracker's last frame with its reference keyframe.
+    fn apply_global_ba(&mut self, wait: bool) -> Result<()> {
+        if !self.loop_closer.global_ba_running() {
+            return Ok(());
+        }
+        let reference = self.tracker.reference_keyframe();
+        let before = reference.and_then(|r| self.map.keyframe(r)).map(|k| k.pose);
+        let applied = self.loop_closer.poll_global_ba(
+            &mut self.map,
+            &self.undistorter.ideal,
+            &self.mapper.config.ba,
+            self.slam_to_world.as_ref(),
+            wait,
+        )?;
+        if let (Some(stats), Some(r), Some(b)) = (applied, reference, before) {
+            tracing::info!(
+                ?stats,
+                frame = self.next_index,
+                "global BA from its thread applied"
+            );
+            self.tracker.keyframes_moved(&self.map, &b, r);
+        }
+        Ok(())
+    }
+
+    /// Waits for a global BA still running on its thread and applies it: call before reading
+    /// the final trajectories. Nothing to do without
+    /// [`LoopClosingConfig::global_ba_thread`](crate::loop_closing::LoopClosingConfig).
+    pub fn finish_background_work(&mut self) -> Result<()> {
+        self.apply_global_ba(true)
     }
 
     /// The frame's pose relative to its reference keyframe as that keyframe is now.

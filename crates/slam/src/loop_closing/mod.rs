@@ -3,6 +3,7 @@
 //! the essential graph) and run a global bundle adjustment. Sequential and seeded, so runs
 //! stay deterministic.
 
+mod background;
 pub mod correction;
 pub mod detection;
 pub mod global_ba;
@@ -62,6 +63,13 @@ pub struct LoopClosingConfig {
     pub pose_graph: PoseGraphConfig,
     /// Run a global bundle adjustment after each loop correction.
     pub global_ba: bool,
+    /// Solve the global BA on its own thread while tracking and local mapping go on, and
+    /// apply it when it is done (ORB-SLAM2's way): no stall of tracking, but the frame it
+    /// lands on depends on timing, so runs are no longer reproducible. Off by default and in
+    /// every `--sequential` run; `jointloc vo` without `--sequential` turns it on. On a
+    /// 1000 m flight without the keyframe cap an inline global BA stalled tracking for
+    /// 7–25 s (docs/vo.md §6.1a).
+    pub global_ba_thread: bool,
     /// Also close loops once the map is geo-referenced (a SLAM→world similarity is set).
     /// Off by default: there the absolute fixes already bound the drift, and the fusion's
     /// ties between fixes and keyframes are not yet re-derived after a correction, so a loop
@@ -88,6 +96,7 @@ impl Default for LoopClosingConfig {
             min_keyframes_between: 10,
             pose_graph: PoseGraphConfig::default(),
             global_ba: true,
+            global_ba_thread: false,
             when_geo_referenced: false,
         }
     }
@@ -112,16 +121,18 @@ pub struct LoopClosure {
     pub graph_edges: usize,
     /// Wall time of verification + correction + global BA, milliseconds.
     pub ms: f64,
+    /// The global BA's share (on its own thread: the time to set it up and start it).
     pub global_ba_ms: f64,
 }
 
 /// The loop closer's state between keyframes.
-#[derive(Debug, Clone)]
+#[derive(Debug)]
 pub struct LoopCloser {
     pub config: LoopClosingConfig,
     last_loop: Option<KeyFrameId>,
     loop_edges: BTreeSet<(KeyFrameId, KeyFrameId)>,
     closed: Vec<LoopClosure>,
+    background: background::BackgroundGba,
 }
 
 impl LoopCloser {
@@ -131,7 +142,27 @@ impl LoopCloser {
             last_loop: None,
             loop_edges: BTreeSet::new(),
             closed: Vec::new(),
+            background: background::BackgroundGba::default(),
         }
+    }
+
+    /// Applies a global BA that finished on its thread (`wait`: waits for one in flight);
+    /// returns its figures when one was applied. A global BA overtaken by a later loop
+    /// correction is dropped and the latest one started instead.
+    pub fn poll_global_ba(
+        &mut self,
+        map: &mut Map,
+        camera: &PinholeCamera,
+        ba: &LocalBaConfig,
+        slam_to_world: Option<&Sim3>,
+        wait: bool,
+    ) -> Result<Option<GlobalBaStats>> {
+        self.background.poll(map, camera, ba, slam_to_world, wait)
+    }
+
+    /// Whether a global BA is running on its thread.
+    pub fn global_ba_running(&self) -> bool {
+        self.background.running()
     }
 
     /// Loops closed so far, in order.
@@ -175,7 +206,9 @@ impl LoopCloser {
             correction::correct_loop(map, kf, &found, camera, &self.loop_edges, &cfg.pose_graph)?;
         self.loop_edges.insert((kf, found.loop_keyframe));
         let t1 = Instant::now();
-        if cfg.global_ba {
+        if cfg.global_ba && cfg.global_ba_thread {
+            self.background.start(map, camera, ba, slam_to_world);
+        } else if cfg.global_ba {
             global_ba::global_bundle_adjustment(map, camera, ba, slam_to_world)?;
         }
         let t2 = Instant::now();
