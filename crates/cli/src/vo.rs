@@ -187,8 +187,15 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         loops
             .iter()
             .map(|l| format!(
-                " frame {} (keyframe {} → {}, moved {:.3}, {:.0} ms)",
-                l.frame_index, l.keyframe, l.loop_keyframe, l.correction, l.ms
+                " frame {} (keyframe {} → {}, moved {:.3}, {:.0} ms: {:.0} detection, {:.0} correction, {:.0} global BA)",
+                l.frame_index,
+                l.keyframe,
+                l.loop_keyframe,
+                l.correction,
+                l.ms,
+                l.detection_ms,
+                l.correction_ms,
+                l.global_ba_ms
             ))
             .collect::<Vec<_>>()
             .join(",")
@@ -233,7 +240,12 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         .enumerate()
         .max_by(|a, b| a.1.total_cmp(&b.1))
     {
-        println!("slowest frame: {ms:.0} ms (frame {i}; tracking, local mapping and loop closing)");
+        let at = |v: &[f64]| v.get(i).copied().unwrap_or(f64::NAN);
+        println!(
+            "slowest frame: {ms:.0} ms (frame {i}: ORB {:.0}, tracking {:.0}, the rest mapping and loop closing)",
+            at(&t.orb_ms),
+            at(&t.tracking_ms)
+        );
     }
     println!(
         "throughput: {:.1} Hz ({n} frames in {wall:.1} s, image decoding included)",

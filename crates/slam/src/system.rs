@@ -387,7 +387,7 @@ impl System {
     ) -> Result<FrameResult> {
         let index = self.next_index;
         self.check_frame(image.width(), image.height(), timestamp, altitude)?;
-        self.apply_global_ba(false)?;
+        self.apply_background(false)?;
         self.next_index += 1;
         self.last_timestamp = Some(timestamp);
         let t0 = Instant::now();
@@ -416,6 +416,9 @@ impl System {
             self.mapper.add_recent(&self.map);
             keyframe = self.map.last_keyframe().map(|k| k.id);
         } else if outcome.keyframe_needed
+            // While a loop correction is solved on its thread the map must stay as it was
+            // (ORB-SLAM2 stops local mapping for it); tracking goes on without new keyframes.
+            && !self.loop_closer.correcting()
             && let Some(kf) = self.mapper.insert_keyframe(&mut self.map, &frame)
         {
             self.tracker.keyframe_inserted(&frame, kf);
@@ -477,38 +480,40 @@ impl System {
         })
     }
 
-    /// Applies a global BA that finished on its thread (`wait`: waits for one in flight; see
+    /// Applies what loop closing finished on its threads (`wait`: waits for all of it; see
     /// [`LoopClosingConfig::global_ba_thread`](crate::loop_closing::LoopClosingConfig)), and
     /// moves the tracker's last frame with its reference keyframe.
-    fn apply_global_ba(&mut self, wait: bool) -> Result<()> {
-        if !self.loop_closer.global_ba_running() {
+    fn apply_background(&mut self, wait: bool) -> Result<()> {
+        if !self.loop_closer.background_running() {
             return Ok(());
         }
         let reference = self.tracker.reference_keyframe();
         let before = reference.and_then(|r| self.map.keyframe(r)).map(|k| k.pose);
-        let applied = self.loop_closer.poll_global_ba(
+        let applied = self.loop_closer.poll_background(
             &mut self.map,
             &self.undistorter.ideal,
             &self.mapper.config.ba,
             self.slam_to_world.as_ref(),
             wait,
         )?;
-        if let (Some(stats), Some(r), Some(b)) = (applied, reference, before) {
+        if applied.moved() {
             tracing::info!(
-                ?stats,
+                ?applied,
                 frame = self.next_index,
-                "global BA from its thread applied"
+                "loop closing from its threads applied"
             );
-            self.tracker.keyframes_moved(&self.map, &b, r);
+            if let (Some(r), Some(b)) = (reference, before) {
+                self.tracker.keyframes_moved(&self.map, &b, r);
+            }
         }
         Ok(())
     }
 
-    /// Waits for a global BA still running on its thread and applies it: call before reading
-    /// the final trajectories. Nothing to do without
+    /// Waits for loop closing's background work and applies it: call before reading the
+    /// final trajectories. Nothing to do without
     /// [`LoopClosingConfig::global_ba_thread`](crate::loop_closing::LoopClosingConfig).
     pub fn finish_background_work(&mut self) -> Result<()> {
-        self.apply_global_ba(true)
+        self.apply_background(true)
     }
 
     /// The frame's pose relative to its reference keyframe as that keyframe is now.

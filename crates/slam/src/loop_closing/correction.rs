@@ -33,6 +33,8 @@ pub struct CorrectionStats {
     /// Pose-graph cost before and after.
     pub initial_cost: f64,
     pub final_cost: f64,
+    /// Wall time of the pose-graph optimisation alone, milliseconds.
+    pub pose_graph_ms: f64,
 }
 
 /// A world→camera pose as a similarity of scale 1.
@@ -58,10 +60,122 @@ pub fn correct_loop(
     loop_edges: &BTreeSet<(KeyFrameId, KeyFrameId)>,
     pose_graph: &PoseGraphConfig,
 ) -> Result<CorrectionStats> {
+    let (mut stats, graph) = correct_locally(map, kf, found, camera, loop_edges, pose_graph);
+    if graph.n_nodes() == 0 {
+        return Ok(stats);
+    }
+    let solved = graph.solve()?;
+    stats.initial_cost = solved.initial_cost;
+    stats.final_cost = solved.final_cost;
+    stats.pose_graph_ms = solved.ms;
+    solved.apply(map);
+    Ok(stats)
+}
+
+/// The essential graph of a loop correction, taken out of the map: solved away from it
+/// ([`EssentialGraph::solve`], the expensive part) and applied with
+/// [`SolvedEssentialGraph::apply`] to the map as it was when the graph was made (local
+/// mapping must not have changed it meanwhile).
+#[derive(Debug, Clone)]
+pub struct EssentialGraph {
+    ids: Vec<KeyFrameId>,
+    initial: Vec<Sim3>,
+    fixed: Vec<bool>,
+    edges: Vec<PoseGraphEdge>,
+    /// The connected keyframe each moved point followed.
+    corrected_by: BTreeMap<MapPointId, KeyFrameId>,
+    config: PoseGraphConfig,
+}
+
+/// A solved [`EssentialGraph`].
+#[derive(Debug, Clone)]
+pub struct SolvedEssentialGraph {
+    graph: EssentialGraph,
+    poses: Vec<Sim3>,
+    pub initial_cost: f64,
+    pub final_cost: f64,
+    /// Wall time of the optimisation, milliseconds.
+    pub ms: f64,
+}
+
+impl EssentialGraph {
+    /// Keyframes (nodes) in the graph.
+    pub fn n_nodes(&self) -> usize {
+        self.ids.len()
+    }
+
+    /// Optimises the graph's similarities.
+    pub fn solve(self) -> Result<SolvedEssentialGraph> {
+        let clock = std::time::Instant::now();
+        let result = optimise_pose_graph(&self.initial, &self.fixed, &self.edges, &self.config)?;
+        Ok(SolvedEssentialGraph {
+            poses: result.poses,
+            initial_cost: result.initial_cost,
+            final_cost: result.final_cost,
+            ms: clock.elapsed().as_secs_f64() * 1e3,
+            graph: self,
+        })
+    }
+}
+
+impl SolvedEssentialGraph {
+    /// Moves every keyframe to its optimised similarity and every point with the keyframe
+    /// that corrected it (or its reference keyframe).
+    pub fn apply(self, map: &mut Map) {
+        let g = self.graph;
+        let optimised: BTreeMap<KeyFrameId, (Sim3, Sim3)> = g
+            .ids
+            .iter()
+            .enumerate()
+            .map(|(i, &id)| (id, (g.initial[i], self.poses[i])))
+            .collect();
+        let points: Vec<MapPointId> = map.points().map(|p| p.id).collect();
+        for p in points {
+            let Some(mp) = map.point(p) else {
+                continue;
+            };
+            let by = g.corrected_by.get(&p).copied().unwrap_or(mp.reference);
+            let Some((s_start, s_end)) = optimised.get(&by) else {
+                continue;
+            };
+            let x = s_start.transform_point(&Point3::from(mp.position));
+            let moved = s_end.inverse().transform_point(&x).coords;
+            if let Some(mp) = map.point_mut(p) {
+                mp.position = moved;
+            }
+            map.update_normal_and_depth(p);
+        }
+        for (id, (_, s)) in &optimised {
+            if let Some(o) = map.keyframe_mut(*id) {
+                o.pose = pose_of(s);
+            }
+        }
+    }
+}
+
+/// The part of [`correct_loop`] that needs the map and is quick: the connected keyframes and
+/// their points moved by the loop's similarity, the loop's points fused, the new links made;
+/// returns the essential graph to optimise.
+pub fn correct_locally(
+    map: &mut Map,
+    kf: KeyFrameId,
+    found: &VerifiedLoop,
+    camera: &PinholeCamera,
+    loop_edges: &BTreeSet<(KeyFrameId, KeyFrameId)>,
+    pose_graph: &PoseGraphConfig,
+) -> (CorrectionStats, EssentialGraph) {
     let mut stats = CorrectionStats::default();
     map.update_connections(kf);
     let Some(k) = map.keyframe(kf) else {
-        return Ok(stats);
+        let empty = EssentialGraph {
+            ids: Vec::new(),
+            initial: Vec::new(),
+            fixed: Vec::new(),
+            edges: Vec::new(),
+            corrected_by: BTreeMap::new(),
+            config: *pose_graph,
+        };
+        return (stats, empty);
     };
     let t_kw = k.pose;
     let connected: Vec<KeyFrameId> = std::iter::once(kf)
@@ -219,34 +333,13 @@ pub fn correct_loop(
     }
     stats.nodes = ids.len();
     stats.edges = edges.len();
-    let result = optimise_pose_graph(&initial, &fixed, &edges, pose_graph)?;
-    stats.initial_cost = result.initial_cost;
-    stats.final_cost = result.final_cost;
-    let optimised: BTreeMap<KeyFrameId, (Sim3, Sim3)> = ids
-        .iter()
-        .enumerate()
-        .map(|(i, &id)| (id, (initial[i], result.poses[i])))
-        .collect();
-    let points: Vec<MapPointId> = map.points().map(|p| p.id).collect();
-    for p in points {
-        let Some(mp) = map.point(p) else {
-            continue;
-        };
-        let by = corrected_by.get(&p).copied().unwrap_or(mp.reference);
-        let Some((s_start, s_end)) = optimised.get(&by) else {
-            continue;
-        };
-        let x = s_start.transform_point(&Point3::from(mp.position));
-        let moved = s_end.inverse().transform_point(&x).coords;
-        if let Some(mp) = map.point_mut(p) {
-            mp.position = moved;
-        }
-        map.update_normal_and_depth(p);
-    }
-    for (id, (_, s)) in &optimised {
-        if let Some(o) = map.keyframe_mut(*id) {
-            o.pose = pose_of(s);
-        }
-    }
-    Ok(stats)
+    let graph = EssentialGraph {
+        ids,
+        initial,
+        fixed,
+        edges,
+        corrected_by,
+        config: *pose_graph,
+    };
+    (stats, graph)
 }

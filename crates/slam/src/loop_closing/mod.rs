@@ -5,6 +5,8 @@
 
 mod background;
 pub mod correction;
+
+pub use background::Applied;
 pub mod detection;
 pub mod global_ba;
 pub mod pose_graph;
@@ -121,7 +123,12 @@ pub struct LoopClosure {
     pub graph_edges: usize,
     /// Wall time of verification + correction + global BA, milliseconds.
     pub ms: f64,
-    /// The global BA's share (on its own thread: the time to set it up and start it).
+    /// Its shares: finding and verifying the loop, correcting the map (fusion and the
+    /// essential graph), and the global BA (on its own thread: setting it up and starting it).
+    #[serde(default)]
+    pub detection_ms: f64,
+    #[serde(default)]
+    pub correction_ms: f64,
     pub global_ba_ms: f64,
 }
 
@@ -132,7 +139,7 @@ pub struct LoopCloser {
     last_loop: Option<KeyFrameId>,
     loop_edges: BTreeSet<(KeyFrameId, KeyFrameId)>,
     closed: Vec<LoopClosure>,
-    background: background::BackgroundGba,
+    background: background::Background,
 }
 
 impl LoopCloser {
@@ -142,32 +149,38 @@ impl LoopCloser {
             last_loop: None,
             loop_edges: BTreeSet::new(),
             closed: Vec::new(),
-            background: background::BackgroundGba::default(),
+            background: background::Background::default(),
         }
     }
 
-    /// Applies a global BA that finished on its thread (`wait`: waits for one in flight);
-    /// returns its figures when one was applied. A global BA overtaken by a later loop
-    /// correction is dropped and the latest one started instead.
-    pub fn poll_global_ba(
+    /// Applies what finished on the background threads (`wait`: waits for all of it): an
+    /// essential graph (then starts the global BA after it), a global BA. A global BA
+    /// overtaken by a later loop correction is dropped and the latest map solved instead.
+    pub fn poll_background(
         &mut self,
         map: &mut Map,
         camera: &PinholeCamera,
         ba: &LocalBaConfig,
         slam_to_world: Option<&Sim3>,
         wait: bool,
-    ) -> Result<Option<GlobalBaStats>> {
+    ) -> Result<Applied> {
         self.background.poll(map, camera, ba, slam_to_world, wait)
     }
 
-    /// Whether a global BA is running on its thread.
-    pub fn global_ba_running(&self) -> bool {
+    /// Whether work runs on a background thread.
+    pub fn background_running(&self) -> bool {
         self.background.running()
     }
 
     /// Loops closed so far, in order.
     pub fn closed(&self) -> &[LoopClosure] {
         &self.closed
+    }
+
+    /// Whether a loop correction's essential graph is being solved: the map must not change
+    /// (no keyframe insertion) until it is applied.
+    pub fn correcting(&self) -> bool {
+        self.background.correcting()
     }
 
     /// Looks for a loop at the newly mapped keyframe `kf` and, when one verifies, corrects the
@@ -182,6 +195,7 @@ impl LoopCloser {
     ) -> Result<Option<LoopClosure>> {
         let cfg = self.config;
         if !cfg.enabled
+            || self.background.correcting()
             || (slam_to_world.is_some() && !cfg.when_geo_referenced)
             || map.n_keyframes() < 10
             || self
@@ -202,13 +216,27 @@ impl LoopCloser {
             return Ok(None);
         };
         let (centre_before, frame_index) = (k.centre(), k.frame_index);
-        let stats =
-            correction::correct_loop(map, kf, &found, camera, &self.loop_edges, &cfg.pose_graph)?;
+        let t_found = Instant::now();
+        let threaded = cfg.global_ba_thread;
+        let stats = if threaded {
+            let (stats, graph) = correction::correct_locally(
+                map,
+                kf,
+                &found,
+                camera,
+                &self.loop_edges,
+                &cfg.pose_graph,
+            );
+            if graph.n_nodes() > 0 {
+                self.background.start_graph(graph, cfg.global_ba, map)?;
+            }
+            stats
+        } else {
+            correction::correct_loop(map, kf, &found, camera, &self.loop_edges, &cfg.pose_graph)?
+        };
         self.loop_edges.insert((kf, found.loop_keyframe));
         let t1 = Instant::now();
-        if cfg.global_ba && cfg.global_ba_thread {
-            self.background.start(map, camera, ba, slam_to_world);
-        } else if cfg.global_ba {
+        if cfg.global_ba && !threaded {
             global_ba::global_bundle_adjustment(map, camera, ba, slam_to_world)?;
         }
         let t2 = Instant::now();
@@ -227,12 +255,17 @@ impl LoopCloser {
             graph_nodes: stats.nodes,
             graph_edges: stats.edges,
             ms: (t2 - t0).as_secs_f64() * 1e3,
+            detection_ms: (t_found - t0).as_secs_f64() * 1e3,
+            correction_ms: (t1 - t_found).as_secs_f64() * 1e3,
             global_ba_ms: (t2 - t1).as_secs_f64() * 1e3,
         };
         tracing::info!(
             ?closure,
             fused = stats.fused,
             links = stats.loop_links,
+            pose_graph_ms = stats.pose_graph_ms,
+            nodes = stats.nodes,
+            edges = stats.edges,
             "loop closed"
         );
         self.closed.push(closure);

@@ -12,12 +12,10 @@
 //! `∂e/∂δ_j = J_l⁻¹(e) Ad(S_ij)` and `∂e/∂δ_i = −J_l⁻¹(e) Ad(E)`, `E = exp(e)`.
 //!
 //! The normal equations are solved by a block skyline (envelope) Cholesky over the free nodes in
-//! input order. Keyframe order makes the spanning tree and covisibility edges a narrow band;
-//! each long loop edge only widens the row of its later node, and Cholesky fill stays inside the
-//! envelope, so a 1000-node graph factors in milliseconds. (Conjugate gradients were not used: a
-//! chain's condition number grows like N², so they need O(N) iterations and are never exact.)
-//! Graphs whose revisits link many distant nodes (a lawnmower with cross-strip edges) get a wide
-//! envelope and cost `O(N · width²)`.
+//! reverse Cuthill–McKee order ([`envelope_order`]), which keeps the rows narrow where a
+//! flight's revisits link keyframes far apart in time; Cholesky fill stays inside the
+//! envelope and costs `O(N · width²)`. (Conjugate gradients were not used: a chain's condition
+//! number grows like N², so they need O(N) iterations and are never exact.)
 
 use jointloc_geometry::Sim3;
 use jointloc_geometry::pose::{Vector7, skew};
@@ -115,15 +113,9 @@ pub fn optimise_pose_graph(
     config.validate()?;
     validate_problem(poses, fixed, edges)?;
 
-    // Free nodes in input order: block index of each node, `None` when fixed.
-    let mut block = vec![None; poses.len()];
-    let mut n_free = 0;
-    for (b, &f) in block.iter_mut().zip(fixed) {
-        if !f {
-            *b = Some(n_free);
-            n_free += 1;
-        }
-    }
+    // Block index of each free node in reverse Cuthill–McKee order, `None` when fixed.
+    let block = envelope_order(poses.len(), fixed, edges);
+    let n_free = block.iter().flatten().count();
     let mut skyline = Skyline::new(
         n_free,
         edges
@@ -227,6 +219,85 @@ pub fn optimise_pose_graph(
         final_cost: cost,
         iterations,
     })
+}
+
+/// The block index of each free node (`None`: fixed) in reverse Cuthill–McKee order (George &
+/// Liu 1981): each connected part of the graph of free nodes is numbered breadth-first from a
+/// pseudo-peripheral node, neighbours by increasing degree, and the numbering reversed. Input
+/// order puts every revisit's edges far from the diagonal (a flight that crosses its path many
+/// times links keyframes hundreds apart), and the envelope Cholesky costs the square of the
+/// rows' widths; this order keeps the rows narrow (on a 1000 m flight that crosses itself
+/// often, 455 nodes: 30 209 envelope blocks in input order; `docs/vo.md` §6.1a). Ties go to
+/// the lower index, so the order is deterministic.
+fn envelope_order(n: usize, fixed: &[bool], edges: &[PoseGraphEdge]) -> Vec<Option<usize>> {
+    let mut adjacency: Vec<Vec<usize>> = vec![Vec::new(); n];
+    for e in edges.iter().filter(|e| e.weight > 0.0) {
+        if e.i != e.j && !fixed[e.i] && !fixed[e.j] {
+            adjacency[e.i].push(e.j);
+            adjacency[e.j].push(e.i);
+        }
+    }
+    for a in &mut adjacency {
+        a.sort_unstable();
+        a.dedup();
+    }
+    let degree = |v: usize| adjacency[v].len();
+    // Breadth-first levels from `root` within its part: (order visited, last level).
+    let bfs = |root: usize, seen: &mut Vec<bool>| -> (Vec<usize>, Vec<usize>) {
+        let mut order = vec![root];
+        seen[root] = true;
+        let mut level_start = 0;
+        let mut last_level = vec![root];
+        while level_start < order.len() {
+            let level_end = order.len();
+            for k in level_start..level_end {
+                let mut next: Vec<usize> = adjacency[order[k]]
+                    .iter()
+                    .copied()
+                    .filter(|&v| !seen[v])
+                    .collect();
+                next.sort_by_key(|&v| (degree(v), v));
+                for v in next {
+                    if !seen[v] {
+                        seen[v] = true;
+                        order.push(v);
+                    }
+                }
+            }
+            if order.len() > level_end {
+                last_level = order[level_end..].to_vec();
+            }
+            level_start = level_end;
+        }
+        (order, last_level)
+    };
+    let mut placed = vec![false; n];
+    let mut sequence: Vec<usize> = Vec::with_capacity(n);
+    let mut starts: Vec<usize> = (0..n).filter(|&v| !fixed[v]).collect();
+    starts.sort_by_key(|&v| (degree(v), v));
+    for start in starts {
+        if placed[start] {
+            continue;
+        }
+        // Pseudo-peripheral root: the lowest-degree node of the farthest level, twice.
+        let mut root = start;
+        for _ in 0..2 {
+            let mut scratch = placed.clone();
+            let (_, last) = bfs(root, &mut scratch);
+            root = last
+                .into_iter()
+                .min_by_key(|&v| (degree(v), v))
+                .unwrap_or(root);
+        }
+        let (order, _) = bfs(root, &mut placed);
+        sequence.extend(order);
+    }
+    sequence.reverse();
+    let mut block = vec![None; n];
+    for (b, &v) in sequence.iter().enumerate() {
+        block[v] = Some(b);
+    }
+    block
 }
 
 fn validate_problem(poses: &[Sim3], fixed: &[bool], edges: &[PoseGraphEdge]) -> Result<()> {
@@ -629,7 +700,7 @@ fn sub_a_bt(s: &mut Matrix7, a: &[f64], b: &[f64]) {
 mod tests {
     use super::*;
     use nalgebra::Point3;
-    use rand::SeedableRng;
+    use rand::{Rng, SeedableRng};
     use rand_chacha::ChaCha8Rng;
     use rand_distr::{Distribution, Normal};
 
@@ -1017,6 +1088,69 @@ mod tests {
     fn three_hundred_nodes_with_long_loops_converge() {
         let (before, after) = timed_run(300);
         assert!(after.1 < 0.05 * before.1);
+    }
+
+    /// Envelope blocks of the skyline for the free nodes numbered by `block`.
+    fn envelope_blocks(block: &[Option<usize>], edges: &[PoseGraphEdge]) -> usize {
+        let n_free = block.iter().flatten().count();
+        Skyline::new(
+            n_free,
+            edges
+                .iter()
+                .filter_map(|e| Some((block[e.i]?, block[e.j]?))),
+        )
+        .blocks
+        .len()
+    }
+
+    #[test]
+    fn reverse_cuthill_mckee_narrows_the_envelope_of_a_flight_over_its_own_path() {
+        // A random walk inside a square, as a long flight's keyframes: a chain, plus an edge
+        // between any two nodes within 2 units (covisible on a revisit).
+        let mut rng = ChaCha8Rng::seed_from_u64(5);
+        let n = 400;
+        let mut at = Vec::with_capacity(n);
+        let (mut x, mut y, mut heading) = (10.0f64, 10.0f64, 0.0f64);
+        for _ in 0..n {
+            heading += rng.random_range(-0.4..0.4);
+            x = (x + heading.cos()).clamp(0.0, 20.0);
+            y = (y + heading.sin()).clamp(0.0, 20.0);
+            if !(0.5..19.5).contains(&x) || !(0.5..19.5).contains(&y) {
+                heading += std::f64::consts::PI;
+            }
+            at.push((x, y));
+        }
+        let mut edges = Vec::new();
+        for i in 0..n {
+            for j in 0..i {
+                let d = (at[i].0 - at[j].0).hypot(at[i].1 - at[j].1);
+                if j + 1 == i || d < 2.0 {
+                    edges.push(PoseGraphEdge {
+                        i,
+                        j,
+                        measurement: Sim3::identity(),
+                        weight: 1.0,
+                    });
+                }
+            }
+        }
+        let mut fixed = vec![false; n];
+        fixed[0] = true;
+        let rcm = envelope_order(n, &fixed, &edges);
+        // A numbering of exactly the free nodes.
+        assert_eq!(rcm[0], None);
+        let mut seen: Vec<usize> = rcm.iter().flatten().copied().collect();
+        seen.sort_unstable();
+        assert_eq!(seen, (0..n - 1).collect::<Vec<_>>());
+        let input: Vec<Option<usize>> = (0..n).map(|i| i.checked_sub(1)).collect();
+        let (ordered, plain) = (
+            envelope_blocks(&rcm, &edges),
+            envelope_blocks(&input, &edges),
+        );
+        assert!(
+            2 * ordered < plain,
+            "reverse Cuthill-McKee {ordered} blocks, input order {plain}"
+        );
     }
 
     #[test]
