@@ -55,7 +55,8 @@ pub struct Args {
     #[arg(long)]
     no_altimeter: bool,
     /// Sliding-window cap on the map's keyframes (overrides the config's `max_keyframes`;
-    /// 0: no cap). Retired keyframes keep their poses in both trajectories.
+    /// 0, the default: no cap). Bounds memory on long flights, but loops back to retired
+    /// keyframes are not found. Retired keyframes keep their poses in both trajectories.
     #[arg(long, value_name = "N")]
     max_keyframes: Option<usize>,
     /// Turn loop closing off (overrides the config's `[loop_closing] enabled`): the SLAM as
@@ -81,17 +82,25 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     }
     let camera = read_camera_yaml(&args.dataset.join("camera.yaml"))?.camera;
     let sequence = Sequence::open(&args.dataset)?;
-    let mut config: SystemConfig = match &args.config {
+    // No keyframe cap unless the settings or the command line ask for one: loop closing
+    // needs the old keyframes (docs/vo.md §6.1a).
+    let (mut config, cap_given): (SystemConfig, bool) = match &args.config {
         Some(p) => {
             let text =
                 std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?;
-            toml::from_str(&text).with_context(|| format!("parsing {}", p.display()))?
+            let config: SystemConfig =
+                toml::from_str(&text).with_context(|| format!("parsing {}", p.display()))?;
+            let given =
+                toml::from_str::<toml::Table>(&text).is_ok_and(|t| t.contains_key("max_keyframes"));
+            (config, given)
         }
-        None => SystemConfig::default(),
+        None => (SystemConfig::default(), false),
     };
-    if let Some(n) = args.max_keyframes {
-        config.max_keyframes = n;
-    }
+    config.max_keyframes = match (args.max_keyframes, cap_given) {
+        (Some(n), _) => n,
+        (None, true) => config.max_keyframes,
+        (None, false) => 0,
+    };
     if args.no_loop_closing {
         config.loop_closing.enabled = false;
     }

@@ -32,11 +32,13 @@ pub struct SystemConfig {
     /// Sliding-window cap on the keyframes in the map (0: no cap). Once exceeded, the oldest
     /// keyframes outside the newest keyframe's local window are retired with the points only
     /// they observe, so memory stops growing with the flight's length; their poses stay in the
-    /// trajectories. Without loop closure nothing reads old keyframes: tracking, local BA and
-    /// relocalisation (the 30 newest) work on the recent ones. Default 200 (≈ 440 m of a
-    /// straight 10 m-altitude flight; `jointloc vo` then peaks at 64 MB RSS on a 1000 m
-    /// flight instead of 128 MB, with an identical trajectory: docs/vo.md §3). The local
-    /// window (itself + up to `local_mapping.ba.max_window` covisible keyframes) and the
+    /// trajectories. Tracking, local BA and relocalisation (the 30 newest) work on the recent
+    /// keyframes, but loop closing can only return to keyframes still in the map. Default 200
+    /// (≈ 440 m of a straight 10 m-altitude flight), what `jointloc run` uses: it closes no
+    /// loop once geo-referenced. `jointloc vo` has no cap unless told (ORB-SLAM2 has none): on
+    /// a fresh 1000 m flight that crosses itself, loop closing gives 0.117 m without a cap and
+    /// 0.508 m with 200 keyframes, for 342 MB of RSS instead of 139 MB (docs/vo.md §6.1a). The
+    /// local window (itself + up to `local_mapping.ba.max_window` covisible keyframes) and the
     /// tracker's reference keyframe are never retired, so a cap below that many is exceeded.
     pub max_keyframes: usize,
     /// Keypoints further off the optical axis than this (degrees) are dropped when a lens
