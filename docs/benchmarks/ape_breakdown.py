@@ -2,10 +2,11 @@
 """Splits a trajectory's Sim(3)-aligned APE into frame-to-frame jitter and slow drift, and
 tells whether the jitter is the tilt/shift ambiguity of a nadir camera.
 
-    python3 ape_breakdown.py GT.tum EST.tum [--window 9]
+    python3 ape_breakdown.py GT.tum EST.tum [--window 9] [--align sim3|none]
 
 Both files are TUM (timestamp tx ty tz qx qy qz qw, camera-to-world); frames are paired by
-timestamp. Printed: the Sim(3) APE rmse; the high-frequency part of the position error (the
+timestamp. `--align none` compares world-frame outputs (JointLoc's) as they are. Printed: the
+APE rmse; the high-frequency part of the position error (the
 error minus its moving average over --window frames) per axis, the same for the rotation
 error (mrad), and for the ground point under the camera (the camera position moved along the
 rotation error by the mean height); and the correlation of the x (y) jitter with the rotation
@@ -59,6 +60,7 @@ def main():
     ap.add_argument("gt")
     ap.add_argument("est")
     ap.add_argument("--window", type=int, default=9)
+    ap.add_argument("--align", choices=["sim3", "none"], default="sim3")
     a = ap.parse_args()
     gt, est = load(a.gt), load(a.est)
     ts = sorted(set(gt) & set(est))
@@ -66,7 +68,7 @@ def main():
         raise SystemExit(f"{a.est}: only {len(ts)} frames share a timestamp with {a.gt}")
     g = np.array([gt[t][:3] for t in ts])
     e = np.array([est[t][:3] for t in ts])
-    s, r, t = umeyama(e, g)
+    s, r, t = umeyama(e, g) if a.align == "sim3" else (1.0, np.eye(3), np.zeros(3))
     err = (s * (r @ e.T)).T + t - g
     rot = []
     for stamp in ts:
@@ -77,7 +79,7 @@ def main():
     hf, hr = high_pass(err, a.window), high_pass(rot, a.window)
     ground = hf + np.cross(hr, np.array([0.0, 0.0, -height]))
     rms = lambda x: np.sqrt((x**2).mean(0))
-    print(f"frames {len(ts)}  Sim(3) scale {s:.4f}  APE rmse {np.sqrt((err**2).sum(1).mean()):.4f} m")
+    print(f"frames {len(ts)}  alignment {a.align}, scale {s:.4f}  APE rmse {np.sqrt((err**2).sum(1).mean()):.4f} m")
     print(f"jitter (error minus its {a.window}-frame mean), rms x y z: camera {np.round(rms(hf), 4)} m, "
           f"ground point {np.round(rms(ground), 4)} m, rotation {np.round(1000 * rms(hr), 2)} mrad")
     print(f"jitter total {np.sqrt((hf**2).sum(1).mean()):.4f} m; drift (the rest) "
