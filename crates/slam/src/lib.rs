@@ -13,6 +13,7 @@ pub mod initializer;
 pub mod local_mapping;
 pub mod loop_closing;
 pub mod map;
+pub mod place;
 pub mod relocalisation;
 pub mod system;
 pub mod tracking;

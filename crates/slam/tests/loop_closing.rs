@@ -1,6 +1,7 @@
 //! Loop closing on a rendered flight that comes back over its own start: the loop is found
 //! by position, verified, corrected, and the trajectory is more accurate than without it;
-//! two runs stay identical; with the global BA on its own thread it still gains.
+//! two runs stay identical; with the global BA on its own thread it still gains; candidates
+//! by appearance (the embedded vocabulary) find it too.
 
 use std::path::Path;
 
@@ -10,6 +11,7 @@ use jointloc_formats::{Sequence, read_camera_yaml};
 use jointloc_geometry::trajectory::{Trajectory, TumOptions};
 use jointloc_sim::TerrainKind;
 use jointloc_sim::dataset::{SimConfig, generate_dataset};
+use jointloc_slam::loop_closing::CandidateSource;
 use jointloc_slam::system::{System, SystemConfig};
 use jointloc_slam::tracking::TrackingState;
 
@@ -27,11 +29,16 @@ fn loop_flight(dir: &Path) {
 }
 
 fn run(dir: &Path, loop_closing: bool) -> (System, usize) {
-    run_with(dir, loop_closing, false)
+    run_with(dir, loop_closing, false, CandidateSource::Position)
 }
 
 /// `global_ba_thread`: the global BA after a loop on its own thread, applied when done.
-fn run_with(dir: &Path, loop_closing: bool, global_ba_thread: bool) -> (System, usize) {
+fn run_with(
+    dir: &Path,
+    loop_closing: bool,
+    global_ba_thread: bool,
+    candidates: CandidateSource,
+) -> (System, usize) {
     let camera = read_camera_yaml(&dir.join("camera.yaml"))
         .expect("camera")
         .camera;
@@ -39,6 +46,7 @@ fn run_with(dir: &Path, loop_closing: bool, global_ba_thread: bool) -> (System, 
     let mut config = SystemConfig::default();
     config.loop_closing.enabled = loop_closing;
     config.loop_closing.global_ba_thread = global_ba_thread;
+    config.loop_closing.candidates = candidates;
     let mut system = System::new(camera, config).expect("system");
     let mut lost = 0;
     for (i, f) in seq.frames.iter().enumerate() {
@@ -100,12 +108,28 @@ fn a_flight_over_its_own_start_closes_the_loop_and_gains_accuracy() {
     assert_eq!(key(&with), key(&again));
     // The global BA on its own thread (applied whenever it lands) closes the loop too and
     // gains as much, within timing noise.
-    let (threaded, lost_threaded) = run_with(&dir, true, true);
+    let (threaded, lost_threaded) = run_with(&dir, true, true, CandidateSource::Position);
     assert_eq!(lost_threaded, 0);
     assert!(!threaded.loops_closed().is_empty(), "no loop closed");
     let ape_threaded = sim3_ape(&dir, &threaded);
     assert!(
         ape_threaded < ape_without,
         "threaded global BA did not help: {ape_threaded:.4} vs {ape_without:.4} m (inline {ape_with:.4})"
+    );
+    // Candidates by bag of words instead of position: the same place is found.
+    let (by_look, lost_by_look) = run_with(&dir, true, false, CandidateSource::Appearance);
+    assert_eq!(lost_by_look, 0);
+    assert!(
+        !by_look.loops_closed().is_empty(),
+        "no loop found by appearance"
+    );
+    for l in by_look.loops_closed() {
+        assert!(l.keyframe > l.loop_keyframe + 20, "{l:?}");
+        assert!(l.correction < 0.5 && l.matches >= 40, "{l:?}");
+    }
+    let ape_by_look = sim3_ape(&dir, &by_look);
+    assert!(
+        ape_by_look < ape_without,
+        "appearance loops did not help: {ape_by_look:.4} vs {ape_without:.4} m"
     );
 }

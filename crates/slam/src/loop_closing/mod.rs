@@ -3,6 +3,7 @@
 //! the essential graph) and run a global bundle adjustment. Sequential and seeded, so runs
 //! stay deterministic.
 
+pub mod appearance;
 mod background;
 pub mod correction;
 
@@ -13,6 +14,7 @@ pub mod pose_graph;
 pub mod sim3_ransac;
 
 use std::collections::BTreeSet;
+use std::sync::Arc;
 use std::time::Instant;
 
 use jointloc_geometry::{PinholeCamera, Sim3};
@@ -21,11 +23,25 @@ use serde::{Deserialize, Serialize};
 use crate::error::Result;
 use crate::local_mapping::LocalBaConfig;
 use crate::map::{KeyFrameId, Map};
+use crate::place::Vocabulary;
 
 pub use correction::CorrectionStats;
 pub use detection::VerifiedLoop;
 pub use global_ba::GlobalBaStats;
 pub use pose_graph::PoseGraphConfig;
+
+/// Where loop candidates come from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum CandidateSource {
+    /// Keyframes whose camera centre is within reach of the new one's (no vocabulary).
+    Position,
+    /// Keyframes that look like the new one by bag of words (ORB-SLAM2's way; the embedded
+    /// vocabulary trained on our rendered frames).
+    Appearance,
+    /// Position candidates first, then appearance ones not among them.
+    Both,
+}
 
 /// Settings of loop closing (`[loop_closing]`).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -33,6 +49,8 @@ pub use pose_graph::PoseGraphConfig;
 pub struct LoopClosingConfig {
     /// Off: keyframes are never checked for loops.
     pub enabled: bool,
+    /// Where candidates come from (`"position"`, `"appearance"`, `"both"`).
+    pub candidates: CandidateSource,
     /// A candidate's camera centre is within this many of the new keyframe's median depths
     /// (one depth ≈ the footprint's width at a 53° field of view) …
     pub reach_depths: f64,
@@ -84,6 +102,7 @@ impl Default for LoopClosingConfig {
     fn default() -> Self {
         Self {
             enabled: true,
+            candidates: CandidateSource::Position,
             reach_depths: 1.0,
             drift_fraction: 0.03,
             min_path_depths: 3.0,
@@ -140,17 +159,46 @@ pub struct LoopCloser {
     loop_edges: BTreeSet<(KeyFrameId, KeyFrameId)>,
     closed: Vec<LoopClosure>,
     background: background::Background,
+    /// Loaded when appearance candidates are asked for.
+    vocabulary: Option<Arc<Vocabulary>>,
+    bows: appearance::BowCache,
 }
 
 impl LoopCloser {
     pub fn new(config: LoopClosingConfig) -> Self {
+        let vocabulary = (config.enabled && config.candidates != CandidateSource::Position)
+            .then(|| Arc::new(Vocabulary::embedded()));
         Self {
             config,
             last_loop: None,
             loop_edges: BTreeSet::new(),
             closed: Vec::new(),
             background: background::Background::default(),
+            vocabulary,
+            bows: appearance::BowCache::default(),
         }
+    }
+
+    /// The loop candidates of `kf`, by the configured source.
+    fn candidates(&mut self, map: &Map, kf: KeyFrameId) -> Vec<KeyFrameId> {
+        let cfg = &self.config;
+        let mut out = Vec::new();
+        if cfg.candidates != CandidateSource::Appearance {
+            out = detection::position_candidates(map, kf, cfg);
+        }
+        if let (CandidateSource::Appearance | CandidateSource::Both, Some(v)) =
+            (cfg.candidates, &self.vocabulary)
+        {
+            self.bows.retain_in(map);
+            for c in
+                appearance::appearance_candidates(map, kf, v, &mut self.bows, cfg.max_candidates)
+            {
+                if !out.contains(&c) {
+                    out.push(c);
+                }
+            }
+        }
+        out
     }
 
     /// Applies what finished on the background threads (`wait`: waits for all of it): an
@@ -205,7 +253,7 @@ impl LoopCloser {
             return Ok(None);
         }
         let t0 = Instant::now();
-        let candidates = detection::position_candidates(map, kf, &cfg);
+        let candidates = self.candidates(map, kf);
         let Some(found) = candidates
             .into_iter()
             .find_map(|c| detection::verify(map, kf, c, camera, &cfg))
