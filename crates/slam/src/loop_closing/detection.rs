@@ -1,6 +1,7 @@
 //! Loop detection and verification (ORB-SLAM2's `DetectLoop` and `ComputeSim3`).
 //!
-//! Candidates come from position, not appearance: a downward camera over a planetary surface
+//! Candidates come from position by default (by appearance with `candidates = "appearance"`,
+//! [`super::appearance`]): a downward camera over a planetary surface
 //! sees the same ground again only when it comes back over it, so a keyframe is a candidate
 //! when its camera centre lies within a footprint of the new keyframe's (the median depth of
 //! its points, in SLAM units) plus an allowance for the drift accumulated along the path

@@ -6,7 +6,7 @@
 //!
 //! ORB-SLAM2's vocabulary (trained on Bovisa and other city imagery) is not ours to ship; this
 //! one is trained on our own rendered Mars frames by a committed command
-//! (`examples/train_vocabulary.rs`, `docs/vo.md` §6.3), and is embedded in the library
+//! (`examples/train_vocabulary.rs`, `docs/vo.md` §6.1c), and is embedded in the library
 //! ([`Vocabulary::embedded`]).
 
 use rand::{Rng, SeedableRng};
