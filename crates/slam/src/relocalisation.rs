@@ -1,5 +1,6 @@
 //! Relocalisation after tracking is lost (ORB-SLAM2's `Relocalization`): the frame's
-//! descriptors are matched against the map points of recent keyframes, a pose is found by
+//! descriptors are matched against the map points of recent keyframes, then of the keyframes
+//! anywhere in the map that look most like it by bag of words, a pose is found by
 //! PnP-RANSAC, refined by the pose-only optimisation, and completed by projecting the
 //! candidate's points with a wide, then a narrow window.
 
@@ -10,7 +11,9 @@ use nalgebra::{Point2, Point3};
 use serde::{Deserialize, Serialize};
 
 use crate::frame::Frame;
+use crate::loop_closing::appearance::BowCache;
 use crate::map::{KeyFrameId, Map, MapPointId};
+use crate::place::{BowVector, Vocabulary};
 use crate::tracking::pose_optimization::{PoseOptimizationConfig, optimize_pose};
 use crate::tracking::projection::search_local_points;
 use crate::tracking::reference::{keyframe_matcher, match_keyframe};
@@ -30,6 +33,10 @@ pub struct RelocalisationConfig {
     pub pnp: PnpConfig,
     /// Inliers for a relocalisation to be accepted (ORB-SLAM2: 50).
     pub min_inliers: usize,
+    /// Keyframes from anywhere in the map tried after the recent ones, the best by bag of
+    /// words (the embedded vocabulary, `crate::place`); 0: recent keyframes only. A UAV that
+    /// comes back over old ground after a loss finds its place there.
+    pub appearance_candidates: usize,
 }
 
 impl Default for RelocalisationConfig {
@@ -40,22 +47,41 @@ impl Default for RelocalisationConfig {
             ratio: 0.75,
             pnp: PnpConfig::default(),
             min_inliers: 50,
+            appearance_candidates: 10,
         }
     }
 }
 
-/// Tries the candidates newest first; on success sets `frame.pose` and its matches and returns
-/// the keyframe it relocalised against. On failure the frame is left without pose or matches.
+/// Tries the candidates newest first, then (with `place`) the keyframes that look most like
+/// the frame; on success sets `frame.pose` and its matches and returns the keyframe it
+/// relocalised against. On failure the frame is left without pose or matches.
 pub fn relocalise(
     frame: &mut Frame,
     map: &mut Map,
     camera: &PinholeCamera,
     config: &RelocalisationConfig,
     pose_cfg: &PoseOptimizationConfig,
+    place: Option<(&Vocabulary, &mut BowCache)>,
 ) -> Option<KeyFrameId> {
     let mut candidates: Vec<KeyFrameId> = map.keyframes().map(|k| k.id).collect();
     candidates.reverse();
     candidates.truncate(config.max_candidates);
+    if let (Some((vocabulary, cache)), n @ 1..) = (place, config.appearance_candidates) {
+        let query = BowVector::new(vocabulary, &frame.features.descriptors);
+        cache.retain_in(map);
+        let others: Vec<KeyFrameId> = map
+            .keyframes()
+            .map(|k| k.id)
+            .filter(|id| !candidates.contains(id))
+            .collect();
+        let mut scored: Vec<(f64, KeyFrameId)> = others
+            .into_iter()
+            .filter_map(|id| Some((query.score(cache.get(vocabulary, map, id)?), id)))
+            .filter(|(s, _)| *s > 0.0)
+            .collect();
+        scored.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
+        candidates.extend(scored.into_iter().take(n).map(|(_, id)| id));
+    }
     for kf in candidates {
         if try_candidate(frame, map, kf, camera, config, pose_cfg) {
             tracing::info!(frame = frame.index, keyframe = %kf, "relocalised");

@@ -256,3 +256,68 @@ fn a_new_map_initialises_tracks_and_replaces_the_old_one_in_the_outputs() {
         "new map: alignment scale {scale}"
     );
 }
+
+/// Runs the whole flight, declares tracking lost and feeds its first `back` frames again (the
+/// UAV back over its start, away from the newest keyframes). Returns the frame results of the
+/// second pass and the first pass's poses of the same frames.
+fn return_to_start(
+    dir: &Path,
+    appearance_candidates: usize,
+    back: usize,
+) -> (Vec<FrameResult>, Vec<FrameResult>) {
+    let mut config = SystemConfig::default();
+    config.tracking.relocalisation.appearance_candidates = appearance_candidates;
+    // Only the 5 newest keyframes by recency (the last few metres): on this short flight the
+    // default 30 would be most of the map.
+    config.tracking.relocalisation.max_candidates = 5;
+    let seq = Sequence::open(dir).expect("sequence");
+    let (mut system, first) = run_with(dir, seq.len(), config, |_, _| {});
+    system.force_lost();
+    let t_end = seq.frames.last().expect("frames").timestamp;
+    let mut second = Vec::new();
+    for i in 0..back {
+        let img = seq.load_image(i).expect("image");
+        let f = &seq.frames[i];
+        let t = t_end + 0.2 * (i + 1) as f64;
+        second.push(
+            system
+                .process(GrayImageView::from(&img), t, f.altitude)
+                .expect("frame"),
+        );
+    }
+    (second, first)
+}
+
+#[test]
+fn relocalises_over_old_ground_by_appearance() {
+    let dir = dataset(&CRATER, TerrainKind::Crater, 21, 35.0);
+    let back = 40;
+    let (by_look, first) = return_to_start(dir, 10, back);
+    let at = by_look
+        .iter()
+        .position(|r| r.relocalised)
+        .expect("no relocalisation over the start by appearance");
+    // Where the map put the same image the first time round, if it was tracked then.
+    let init = first_ok(&first);
+    let j = (at..back)
+        .find(|&i| by_look[i].pose.is_some() && first[i].pose.is_some())
+        .expect("a relocalised frame tracked in the first pass");
+    let (now, then) = (
+        by_look[j].pose.expect("pose").centre(),
+        first[j].pose.expect("pose").centre(),
+    );
+    assert!(
+        (now - then).norm() < 0.3,
+        "frame {j} relocalised at {now:?}, first tracked at {then:?} (map initialised at {init})"
+    );
+    // Recent keyframes only: the start is out of their reach.
+    let (by_recency, _) = return_to_start(dir, 0, back);
+    let recency_at = by_recency.iter().position(|r| r.relocalised);
+    eprintln!(
+        "relocalised by appearance at frame {at} of the return, by recency at {recency_at:?}"
+    );
+    assert!(
+        recency_at.is_none_or(|r| r > at),
+        "recent keyframes relocalised at {recency_at:?}, appearance at {at}"
+    );
+}

@@ -10,7 +10,7 @@ use crate::place::{BowVector, Vocabulary};
 
 /// Each keyframe's bag of words, computed once (keyframe ids are never reused, also across
 /// merged maps).
-#[derive(Debug, Default)]
+#[derive(Debug, Clone, Default)]
 pub struct BowCache {
     vectors: BTreeMap<KeyFrameId, BowVector>,
 }
@@ -18,7 +18,12 @@ pub struct BowCache {
 impl BowCache {
     /// The vector of `kf`, computed from its descriptors on first use; `None` if it is not
     /// in the map.
-    fn get(&mut self, vocabulary: &Vocabulary, map: &Map, kf: KeyFrameId) -> Option<&BowVector> {
+    pub(crate) fn get(
+        &mut self,
+        vocabulary: &Vocabulary,
+        map: &Map,
+        kf: KeyFrameId,
+    ) -> Option<&BowVector> {
         let k = map.keyframe(kf)?;
         Some(
             self.vectors

@@ -9,13 +9,17 @@ pub mod pose_optimization;
 pub mod projection;
 pub mod reference;
 
+use std::sync::Arc;
+
 use jointloc_features::orb::MatcherConfig;
 use jointloc_geometry::{PinholeCamera, WorldToCamera};
 use nalgebra::Isometry3;
 use serde::{Deserialize, Serialize};
 
 use crate::frame::Frame;
+use crate::loop_closing::appearance::BowCache;
 use crate::map::{KeyFrameId, Map};
+use crate::place::Vocabulary;
 use crate::relocalisation::{RelocalisationConfig, relocalise};
 
 pub use initialization::{InitializationConfig, try_initialize};
@@ -113,10 +117,15 @@ pub struct Tracker {
     reference_kf: Option<KeyFrameId>,
     last_keyframe_frame: usize,
     last_relocalisation: Option<usize>,
+    /// The vocabulary of relocalisation by appearance, when it is on.
+    vocabulary: Option<Arc<Vocabulary>>,
+    bows: BowCache,
 }
 
 impl Tracker {
     pub fn new(config: TrackingConfig) -> Self {
+        let vocabulary = (config.relocalisation.appearance_candidates > 0)
+            .then(|| Arc::new(Vocabulary::embedded()));
         Self {
             config,
             state: TrackingState::NotInitialized,
@@ -126,6 +135,8 @@ impl Tracker {
             reference_kf: None,
             last_keyframe_frame: 0,
             last_relocalisation: None,
+            vocabulary,
+            bows: BowCache::default(),
         }
     }
 
@@ -204,7 +215,15 @@ impl Tracker {
             // Lost, or the motion and reference searches just failed: relocalise right away.
             frame.clear_matches();
             let cfg = &self.config.relocalisation;
-            if let Some(kf) = relocalise(frame, map, camera, cfg, &self.config.pose_optimization) {
+            let place = self.vocabulary.as_deref().map(|v| (v, &mut self.bows));
+            if let Some(kf) = relocalise(
+                frame,
+                map,
+                camera,
+                cfg,
+                &self.config.pose_optimization,
+                place,
+            ) {
                 self.reference_kf = Some(kf);
                 self.last_relocalisation = Some(frame.index);
                 outcome.relocalised = true;
