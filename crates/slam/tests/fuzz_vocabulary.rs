@@ -4,7 +4,8 @@
 //! sized by a field of the file. Cases: `JOINTLOC_FUZZ_CASES` (default 500), seed
 //! `JOINTLOC_FUZZ_SEED` (docs/testing.md).
 
-#[path = "common_fuzz/mod.rs"]
+// The fuzz runner shared with the other crates' fuzz tests.
+#[path = "../../formats/tests/common/mod.rs"]
 mod common;
 
 use jointloc_slam::place::Vocabulary;
