@@ -19,6 +19,11 @@ pub enum SlamError {
     /// Monocular initialisation did not find a reliable two-view reconstruction.
     #[error("initialisation failed: {reason}")]
     InitializationFailed { reason: String },
+    /// The two views of an initialisation attempt are too close together: the triangulated
+    /// points' median parallax is below the configured minimum. More baseline will come, so
+    /// the tracker keeps its reference frame.
+    #[error("initialisation failed: median parallax {median_deg:.2}° below {required_deg:.2}°")]
+    ParallaxTooLow { median_deg: f64, required_deg: f64 },
     /// ORB extraction failed (image too small or malformed, bad ORB settings).
     #[error(transparent)]
     Features(#[from] jointloc_features::FeaturesError),

@@ -248,10 +248,10 @@ pub fn initialize(
         )));
     }
     if parallax < config.min_parallax_deg {
-        return Err(fail(format!(
-            "median parallax {parallax:.2}° below {:.2}°",
-            config.min_parallax_deg
-        )));
+        return Err(SlamError::ParallaxTooLow {
+            median_deg: parallax,
+            required_deg: config.min_parallax_deg,
+        });
     }
     let pts: Vec<Vector3<f64>> = points.iter().map(|(_, p)| *p).collect();
     let height = height_below_origin(&pts).ok_or_else(|| fail("no ground plane"))?;

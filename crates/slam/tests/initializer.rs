@@ -3,6 +3,7 @@
 //! from the altimeter.
 
 use jointloc_geometry::{PinholeCamera, WorldToCamera};
+use jointloc_slam::SlamError;
 use jointloc_slam::initializer::{
     Altitudes, InitializerConfig, ScaleSource, TwoViewModel, initialize,
 };
@@ -244,4 +245,30 @@ fn an_inconsistent_altimeter_fails_the_initialisation() {
     )
     .unwrap_err();
     assert!(e.to_string().contains("height ratio"), "{e}");
+}
+
+/// High above the ground a short baseline triangulates with little parallax: the attempt
+/// fails with its own error (the tracker keeps its reference and waits for more baseline),
+/// and the same scene with enough baseline initialises.
+#[test]
+fn a_short_baseline_at_altitude_fails_for_parallax_alone() {
+    let camera = PinholeCamera::ideal(500.0, 500, 500);
+    let config = InitializerConfig::default();
+    let s = scene_at(21, 200.0, 8.0, 5.0, 0.0);
+    let e = initialize(&s.x1, &s.x2, &camera, s.altitudes(), &config).unwrap_err();
+    match e {
+        SlamError::ParallaxTooLow {
+            median_deg,
+            required_deg,
+        } => {
+            assert!(
+                median_deg > 0.5 && median_deg < required_deg,
+                "{median_deg}"
+            );
+        }
+        other => panic!("expected ParallaxTooLow, got {other}"),
+    }
+    let s = scene_at(21, 200.0, 8.0, 12.0, 0.0);
+    let init = initialize(&s.x1, &s.x2, &camera, s.altitudes(), &config).unwrap();
+    assert!(init.median_parallax_deg >= config.min_parallax_deg);
 }

@@ -9,8 +9,8 @@ use jointloc_eval::{AlignMode, EvalConfig, evaluate};
 use jointloc_features::orb::GrayImageView;
 use jointloc_formats::{Sequence, read_camera_yaml};
 use jointloc_geometry::trajectory::{Trajectory, TumOptions};
-use jointloc_sim::TerrainKind;
 use jointloc_sim::dataset::{SimConfig, generate_dataset};
+use jointloc_sim::{Difficulty, TerrainKind};
 use jointloc_slam::system::{FrameResult, System, SystemConfig};
 use jointloc_slam::tracking::TrackingState;
 
@@ -320,4 +320,48 @@ fn relocalises_over_old_ground_by_appearance() {
         recency_at.is_none_or(|r| r > at),
         "recent keyframes relocalised at {recency_at:?}, appearance at {at}"
     );
+}
+
+/// At 200 m above a HiRISE-class scene, 1 m/s, the 2.5° of parallax the initialisation
+/// needs take 9 m (45 frames): the reference frame must be kept while the baseline grows,
+/// not replaced after 30 frames (which never initialised at this altitude).
+#[test]
+fn initialises_at_200_m_where_the_baseline_grows_slowly() {
+    let tmp = tempfile::tempdir().expect("temp dir");
+    let dir = tmp.path().join("ds");
+    let mut cfg = SimConfig {
+        terrain_kind: TerrainKind::Crater,
+        seed: 23,
+        difficulty: Difficulty::Mars,
+        map_size_m: Some(450.0),
+        ..SimConfig::default()
+    };
+    cfg.trajectory.altitude_m = 200.0;
+    cfg.trajectory.length_m = 20.0;
+    generate_dataset(&cfg, &dir, &mut |_, _, _| {}).expect("simulated dataset");
+    let (system, results) = run(&dir, usize::MAX, |_, _| {});
+    let init = first_ok(&results);
+    assert!(
+        (30..80).contains(&init),
+        "initialised at frame {init} of {}",
+        results.len()
+    );
+    let lost = results[init..]
+        .iter()
+        .filter(|r| r.state != TrackingState::Ok)
+        .count();
+    assert_eq!(lost, 0, "frames lost after initialising at {init}");
+    let gt = Trajectory::read_tum(dir.join("uav/gt.txt"), &TumOptions::default()).expect("gt");
+    let est = system.trajectory().expect("trajectory");
+    let cfg = EvalConfig {
+        align: AlignMode::Sim3,
+        ..EvalConfig::default()
+    };
+    let report = evaluate(&gt, &est, &cfg).expect("evaluation");
+    let scale = report.alignment.expect("aligned").scale;
+    eprintln!(
+        "initialised at frame {init}; Sim(3) APE {:.3} m, scale {scale:.3}",
+        report.ape_translation.stats.rmse
+    );
+    assert!((scale - 1.0).abs() < 0.1, "alignment scale {scale}");
 }

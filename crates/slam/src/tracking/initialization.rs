@@ -26,7 +26,9 @@ pub struct InitializationConfig {
     pub min_matches: usize,
     /// Points the second keyframe must keep after the bundle adjustment (ORB-SLAM2: 100).
     pub min_map_points: usize,
-    /// Frames after which an unsuccessful reference frame is replaced by the current one.
+    /// Frames after which an unsuccessful reference frame is replaced by the current one,
+    /// unless the attempt failed only for too little parallax (then the reference is kept
+    /// until its matches fall below `min_matches`).
     pub max_reference_age: usize,
     /// Iterations of the two-keyframe bundle adjustment (ORB-SLAM2: 20).
     pub ba_iterations: usize,

@@ -16,6 +16,7 @@ use jointloc_geometry::{PinholeCamera, WorldToCamera};
 use nalgebra::Isometry3;
 use serde::{Deserialize, Serialize};
 
+use crate::error::SlamError;
 use crate::frame::Frame;
 use crate::loop_closing::appearance::BowCache;
 use crate::map::{KeyFrameId, Map};
@@ -283,7 +284,12 @@ impl Tracker {
             }
             Err(e) => {
                 tracing::debug!(frame = frame.index, error = %e, "initialisation attempt failed");
-                if frame.index >= reference.index + cfg.max_reference_age
+                // Too little parallax with enough matches: the baseline is still growing (at
+                // 200 m, 2.5° takes 9 m), so the reference is kept, as ORB-SLAM2 keeps its
+                // own while it has matches.
+                let waiting = matches!(e, SlamError::ParallaxTooLow { .. });
+                if !waiting
+                    && frame.index >= reference.index + cfg.max_reference_age
                     && frame.features.len() > cfg.min_matches
                 {
                     self.init_reference = Some(frame.clone());
