@@ -80,12 +80,15 @@ impl QueryView {
             scale,
             angle,
             border_margin_px,
+            None,
         )
     }
 
     /// [`QueryView::new`] for a frame seen through `lens` (see [`crate::warp::Lens`]): the
     /// undistortion is folded into the same resampling, and the view's transform acts on
-    /// undistorted pixels.
+    /// undistorted pixels. `max_size` crops a view larger than it around the frame's centre
+    /// (see [`crate::AbsLocConfig::max_view_over_tile`]).
+    #[allow(clippy::too_many_arguments)]
     pub fn through(
         frame: &GrayImage,
         lens: Option<Lens>,
@@ -94,8 +97,9 @@ impl QueryView {
         scale: f64,
         angle: f64,
         border_margin_px: f64,
+        max_size: Option<(usize, usize)>,
     ) -> Result<Self> {
-        let normalised = normalise_lens(frame, lens, centre, scale, angle);
+        let normalised = normalise_lens(frame, lens, centre, scale, angle, max_size);
         let all = detector.detect(&normalised.image)?;
         let keep: Vec<usize> = (0..all.len())
             .filter(|&i| {

@@ -196,17 +196,19 @@ impl NormalisedFrame {
 /// Resamples `frame` by `scale` (output pixels per frame pixel) and rotation `angle` about
 /// `centre`, into the smallest image holding the whole frame.
 pub fn normalise(frame: &GrayImage, centre: (f64, f64), scale: f64, angle: f64) -> NormalisedFrame {
-    normalise_lens(frame, None, centre, scale, angle)
+    normalise_lens(frame, None, centre, scale, angle, None)
 }
 
 /// [`normalise`] for a frame seen through `lens`: the similarity acts on undistorted pixels
-/// and the output holds the undistorted frame up to the lens's largest off-axis angle.
+/// and the output holds the undistorted frame up to the lens's largest off-axis angle. With
+/// `max_size`, an output larger than it is cropped to it around `centre`'s image.
 pub fn normalise_lens(
     frame: &GrayImage,
     lens: Option<Lens>,
     centre: (f64, f64),
     scale: f64,
     angle: f64,
+    max_size: Option<(usize, usize)>,
 ) -> NormalisedFrame {
     let (w, h) = (frame.width() as f64, frame.height() as f64);
     let probe = Similarity {
@@ -239,10 +241,21 @@ pub fn normalise_lens(
         .iter()
         .map(|c| c.1)
         .fold(f64::NEG_INFINITY, f64::max);
-    let out_w = ((max_u - min_u).ceil() as usize + 3).max(8);
-    let out_h = ((max_v - min_v).ceil() as usize + 3).max(8);
+    let mut out_w = ((max_u - min_u).ceil() as usize + 3).max(8);
+    let mut out_h = ((max_v - min_v).ceil() as usize + 3).max(8);
+    let mut dst_centre = [1.0 - min_u, 1.0 - min_v];
+    if let Some((mw, mh)) = max_size {
+        if out_w > mw.max(8) {
+            out_w = mw.max(8);
+            dst_centre[0] = 0.5 * (out_w as f64 - 1.0);
+        }
+        if out_h > mh.max(8) {
+            out_h = mh.max(8);
+            dst_centre[1] = 0.5 * (out_h as f64 - 1.0);
+        }
+    }
     let transform = Similarity {
-        dst_centre: [1.0 - min_u, 1.0 - min_v],
+        dst_centre,
         ..probe
     };
     let k = (1.0 / scale).ceil().max(1.0) as usize;
@@ -328,6 +341,36 @@ mod tests {
             let q = m * Point2::new(x, y).to_homogeneous();
             assert!((q.x - u).abs() < 1e-9 && (q.y - v).abs() < 1e-9);
         }
+    }
+
+    /// A view larger than `max_size` (a frame from high above, resampled to a finer map) is
+    /// cropped to it around the frame's centre, with the grey levels of the uncropped view.
+    #[test]
+    fn a_view_larger_than_its_bound_is_cropped_around_the_centre() {
+        let frame = ramp(500, 500);
+        let centre = (249.5, 249.5);
+        for angle in [0.0, 0.6] {
+            let full = normalise_lens(&frame, None, centre, 1.6, angle, None);
+            let crop = normalise_lens(&frame, None, centre, 1.6, angle, Some((600, 600)));
+            assert!(full.image.width() > 600 && full.image.height() > 600);
+            assert_eq!(crop.image.dimensions(), (600, 600));
+            let (u, v) = crop.transform.forward(centre.0, centre.1);
+            assert!((u - 299.5).abs() < 1e-9 && (v - 299.5).abs() < 1e-9);
+            // The same frame pixel lands on the same grey level in both views.
+            let (x, y) = (300.0, 220.0);
+            let (fu, fv) = full.transform.forward(x, y);
+            let (cu, cv) = crop.transform.forward(x, y);
+            let grey = |n: &NormalisedFrame, u: f64, v: f64| {
+                n.image.get_pixel(u.round() as u32, v.round() as u32).0[0]
+            };
+            // (Up to half an output pixel apart: the ramp changes by < 2 grey levels there.)
+            let (a, b) = (grey(&full, fu, fv), grey(&crop, cu, cv));
+            assert!(a.abs_diff(b) <= 2, "{a} vs {b}");
+        }
+        // A view within its bound is left as it is.
+        let small = normalise_lens(&frame, None, centre, 0.5, 0.3, Some((600, 600)));
+        let free = normalise_lens(&frame, None, centre, 0.5, 0.3, None);
+        assert_eq!(small.image, free.image);
     }
 
     #[test]
