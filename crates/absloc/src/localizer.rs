@@ -68,7 +68,7 @@ pub struct AbsLocConfig {
     /// to at most this many tiles a side (0: never). Above about 130 m a 500-pixel frame
     /// covers more ground than a 500-pixel tile of a 25 cm map (at 200 m its view is 800–1130
     /// pixels a side), and only the part near the tile can match it; the rest costs time.
-    /// 1.2: 1.3–1.45× faster per fix at 200 m with the same mean accuracy, and no crop at
+    /// 1.2: 1.4× faster per fix at 200 m with the same mean accuracy, and no crop at
     /// 100 m or below (`docs/absloc.md` §"Latency per fix").
     pub max_view_over_tile: f64,
     /// Tile feature cache on disk (see [`crate::cache`]).
