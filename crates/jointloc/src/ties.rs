@@ -61,8 +61,10 @@ impl Tie {
 }
 
 impl JointLoc {
-    /// Ties a fix to the keyframe that was current at its frame; false when it cannot be used
-    /// (low confidence, frame not tracked, or that keyframe culled since).
+    /// Ties a fix to the keyframe that was current at its frame (or, when that keyframe was
+    /// culled while the fix was being searched, as happens on its own thread, to the keyframe
+    /// nearest in time, as [`Tie::refresh`] does for older fixes); false when it cannot be
+    /// used (low confidence, frame not tracked).
     pub(crate) fn tie_fix(&mut self, fix: &jointloc_absloc::Fix, at: &Submitted) -> bool {
         if fix.confidence < self.config.min_confidence {
             return false;
@@ -70,9 +72,6 @@ impl JointLoc {
         let (Some(pose), Some((kf_id, t_cw))) = (at.pose, at.keyframe) else {
             return false;
         };
-        if self.slam.map().keyframe(kf_id).is_none() {
-            return false;
-        }
         let altitude = at.altitude;
         // SLAM units per metre: the current alignment's inverse scale, else 1 (the SLAM map is
         // metric from the altimeter at initialisation).
@@ -94,6 +93,15 @@ impl JointLoc {
             slam_camera: centre,
             slam_ground: ground,
         });
+        if self.slam.map().keyframe(kf_id).is_none()
+            && let Some(t) = self.ties.last_mut()
+        {
+            t.refresh(self.slam.map(), at.timestamp);
+            if self.slam.map().keyframe(t.keyframe).is_none() {
+                self.ties.pop();
+                return false;
+            }
+        }
         true
     }
 

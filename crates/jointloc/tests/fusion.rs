@@ -227,3 +227,35 @@ fn threaded_mode_applies_every_search_by_the_finish_and_observers_see_all() {
     let e = rmse(&ground_truth(flight()), &online(&outputs));
     assert!(e < 0.3, "threaded online rmse {e:.3} m");
 }
+
+/// A fix source as slow as a search from high above (hundreds of ms): the keyframe current at
+/// the searched frame may be culled before the fix comes back.
+#[derive(Debug)]
+struct Slow(TruthFixes, std::time::Duration);
+
+impl jointloc_system::FixSource for Slow {
+    fn localize(
+        &mut self,
+        request: &jointloc_system::FixRequest<'_>,
+    ) -> Result<Option<jointloc_system::Located>, jointloc_absloc::AbslocError> {
+        std::thread::sleep(self.1);
+        self.0.localize(request)
+    }
+}
+
+/// On its own thread a fix comes back after its keyframe may have been culled; it is then
+/// tied to the keyframe nearest in time instead of being dropped (at 200 m that dropped the
+/// first fixes and held off the world frame by 22 s).
+#[test]
+fn threaded_fixes_whose_keyframe_was_culled_meanwhile_are_still_used() {
+    let config = JointLocConfig::default();
+    let slow = Slow(
+        TruthFixes::new(flight(), 0.1, 7),
+        std::time::Duration::from_millis(600),
+    );
+    let b = builder(flight(), config.clone(), slow).mode(Mode::Threaded);
+    let (_, outputs) = run(b, &config);
+    let s = &outputs.summary;
+    assert!(s.fixes_found >= 5, "{s:?}");
+    assert_eq!(s.fixes_used, s.fixes_found, "{s:?}");
+}

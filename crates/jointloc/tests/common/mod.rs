@@ -117,7 +117,11 @@ impl FixSource for TruthFixes {
 }
 
 /// The builder for the test flight with fixes from its ground truth.
-pub fn builder(dir: &Path, config: JointLocConfig, source: TruthFixes) -> JointLocBuilder {
+pub fn builder(
+    dir: &Path,
+    config: JointLocConfig,
+    source: impl FixSource + 'static,
+) -> JointLocBuilder {
     let camera = jointloc_formats::camera_yaml::read_camera_yaml(&dir.join("camera.yaml"))
         .unwrap()
         .camera;
