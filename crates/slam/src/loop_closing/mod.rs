@@ -167,7 +167,7 @@ pub struct LoopCloser {
 impl LoopCloser {
     pub fn new(config: LoopClosingConfig) -> Self {
         let vocabulary = (config.enabled && config.candidates != CandidateSource::Position)
-            .then(|| Arc::new(Vocabulary::embedded()));
+            .then(Vocabulary::shared);
         Self {
             config,
             last_loop: None,

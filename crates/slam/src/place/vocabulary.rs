@@ -9,6 +9,8 @@
 //! (`examples/train_vocabulary.rs`, `docs/vo.md` §6.1c), and is embedded in the library
 //! ([`Vocabulary::embedded`]).
 
+use std::sync::{Arc, OnceLock};
+
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
@@ -77,6 +79,13 @@ impl Vocabulary {
     /// The vocabulary shipped with the library (see [`EMBEDDED`]).
     pub fn embedded() -> Self {
         Self::from_bytes(EMBEDDED).expect("the embedded vocabulary is valid (tested)")
+    }
+
+    /// [`Vocabulary::embedded`], read once per process and shared: the tracker and the loop
+    /// closer of every map use the same one.
+    pub fn shared() -> Arc<Self> {
+        static SHARED: OnceLock<Arc<Vocabulary>> = OnceLock::new();
+        SHARED.get_or_init(|| Arc::new(Self::embedded())).clone()
     }
 
     /// Number of words (leaves).

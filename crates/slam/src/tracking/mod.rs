@@ -125,8 +125,7 @@ pub struct Tracker {
 
 impl Tracker {
     pub fn new(config: TrackingConfig) -> Self {
-        let vocabulary = (config.relocalisation.appearance_candidates > 0)
-            .then(|| Arc::new(Vocabulary::embedded()));
+        let vocabulary = (config.relocalisation.appearance_candidates > 0).then(Vocabulary::shared);
         Self {
             config,
             state: TrackingState::NotInitialized,
