@@ -9,6 +9,7 @@
 //! - [`candidate`]: one view against one tile (match, homography, checks);
 //! - [`ssim`], [`confidence`]: the confidence and the area prediction;
 //! - [`localizer`], [`search`]: the coarse-to-fine search ([`AbsLocalizer`]);
+//! - [`mosaic`]: a virtual frame wider than one frame, from recent frames and their poses;
 //! - [`registry`]: matchers by name (`xfeat-lighterglue`, `orb`, ...);
 //! - [`orb`]: ORB behind the same traits (binary descriptors as 0/1 floats);
 //!
@@ -18,8 +19,10 @@
 pub mod cache;
 pub mod candidate;
 pub mod confidence;
+pub mod correlate;
 pub mod error;
 pub mod localizer;
+pub mod mosaic;
 pub mod orb;
 pub mod pipeline;
 pub mod registry;
@@ -32,7 +35,8 @@ pub use cache::CacheStatus;
 pub use confidence::{ConfidenceMode, search_radius};
 pub use error::{AbslocError, Result};
 pub use localizer::{
-    AbsLocConfig, AbsLocalizer, Failure, FailureReason, Fix, Outcome, Prior, heading_from_rotation,
+    AbsLocConfig, AbsLocalizer, Failure, FailureReason, Fix, FrameView, Outcome, Prior,
+    heading_from_rotation,
 };
 pub use pipeline::FeaturePipeline;
 pub use tiles::{Ground, MapTile, MapTiles};

@@ -17,14 +17,15 @@ use nalgebra::{Matrix3, Point2};
 use serde::{Deserialize, Serialize};
 
 use crate::cache::{self, CacheStatus};
-use crate::candidate::{AcceptConfig, Candidate, MatchContext, QueryView, Rejection};
+use crate::candidate::{AcceptConfig, Candidate, MatchContext, QueryView, Rejection, select};
 use crate::confidence::{ConfidenceMode, RADIUS_RANGE, search_radius};
+use crate::correlate::{CorrelationConfig, Grid, NoPeak, correlate};
 use crate::error::{AbslocError, Result};
 use crate::pipeline::FeaturePipeline;
 use crate::search::{self, SearchInput};
 use crate::ssim::{SsimConfig, ssim_masked};
 use crate::tiles::MapTiles;
-use crate::warp::{Lens, warp_into_map_lens};
+use crate::warp::{Lens, normalise_lens, resample, warp_into_map_lens};
 
 /// Settings of [`AbsLocalizer`].
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -81,6 +82,8 @@ pub struct AbsLocConfig {
     pub homography: HomographyConfig,
     /// SSIM window and constants.
     pub ssim: SsimConfig,
+    /// Registration of virtual frames (mosaics) by correlation.
+    pub correlation: CorrelationConfig,
 }
 
 impl Default for AbsLocConfig {
@@ -103,6 +106,7 @@ impl Default for AbsLocConfig {
             accept: AcceptConfig::default(),
             homography: HomographyConfig::default(),
             ssim: SsimConfig::default(),
+            correlation: CorrelationConfig::default(),
         }
     }
 }
@@ -218,6 +222,10 @@ pub enum FailureReason {
     Textureless { std: f64 },
     /// No tile passed the checks; the best rejection seen.
     NoMatch { best: Option<Rejection> },
+    /// A virtual frame is registered around a prior position, and there was none.
+    NoPrior,
+    /// A virtual frame's correlation found no placement.
+    NoPeak(NoPeak),
 }
 
 /// A failed search: confidence 0, never a stale position.
@@ -427,18 +435,63 @@ impl AbsLocalizer {
     /// Localises one frame. Errors on unusable input (frame size, altitude); a search that
     /// finds nothing returns [`Outcome::Failed`] (confidence 0) and widens the next search.
     pub fn localize(&mut self, frame: &GrayImage, altitude: f64, prior: &Prior) -> Result<Outcome> {
+        self.localize_view(&FrameView::frame(frame, altitude), prior)
+    }
+
+    /// Localises a frame or a virtual frame (a [`crate::mosaic::Mosaic`]); see
+    /// [`Self::localize`]. The fix is the ground point under the principal point, at the true
+    /// altitude above it.
+    pub fn localize_view(&mut self, view: &FrameView<'_>, prior: &Prior) -> Result<Outcome> {
         let start = Instant::now();
+        let frame = view.image;
+        let altitude = view.altitude;
         self.tiles.check_frame_size(frame.width(), frame.height())?;
         if !(altitude.is_finite() && altitude > 0.0) {
             return Err(AbslocError::InvalidAltitude { value: altitude });
         }
-        self.adapt_map_scale(altitude)?;
+        if !(view.zoom.is_finite() && view.zoom >= 1.0) {
+            return Err(AbslocError::InvalidConfig {
+                field: "zoom",
+                value: view.zoom.to_string(),
+                reason: "a virtual frame's zoom must be finite and >= 1".into(),
+            });
+        }
+        let coverage = match view.valid {
+            Some(v) if v.len() != (frame.width() * frame.height()) as usize => {
+                return Err(AbslocError::InvalidConfig {
+                    field: "valid",
+                    value: v.len().to_string(),
+                    reason: "the validity mask must have one entry per pixel".into(),
+                });
+            }
+            Some(v) => Some(Coverage::eroded(
+                v,
+                frame.width() as usize,
+                frame.height() as usize,
+                self.config.accept.border_margin_px.ceil() as usize,
+            )),
+            None => None,
+        };
+        let zoomed = altitude * view.zoom;
+        if view.zoom > 1.0 {
+            return Ok(self.correlate_view(view, coverage.as_ref(), prior, start));
+        }
+        self.adapt_map_scale(zoomed)?;
         let std = grey_std(frame);
         if std < self.config.min_texture_std {
             tracing::debug!(std, "frame without texture: no fix");
             return Ok(self.fail(FailureReason::Textureless { std }, 0, false, start));
         }
-        let expected = self.expected_scale(altitude);
+        let expected = self.expected_scale(zoomed);
+        let virtual_frame = view.zoom != 1.0 || view.valid.is_some();
+        let ctx = ViewContext {
+            lens: if virtual_frame {
+                None
+            } else {
+                Lens::of(&self.camera, self.config.accept.max_off_axis_deg)
+            },
+            coverage: coverage.as_ref(),
+        };
         let scale = if self.config.scale_normalisation {
             expected
         } else {
@@ -497,6 +550,7 @@ impl AbsLocalizer {
         for tiles in passes.iter().filter(|p| !p.is_empty()) {
             found = self.search(
                 frame,
+                &ctx,
                 tiles,
                 &first_angles,
                 scale,
@@ -527,6 +581,7 @@ impl AbsLocalizer {
             );
             found = self.search(
                 frame,
+                &ctx,
                 &all,
                 &angles,
                 scale,
@@ -548,8 +603,189 @@ impl AbsLocalizer {
                 start,
             ));
         };
-        let fix = self.finish(frame, &best, altitude, searched, global, start);
+        let fix = self.finish(frame, &ctx, &best, altitude, searched, global, start);
         Ok(Outcome::Fix(fix))
+    }
+
+    /// Registers a virtual frame by correlation (see [`crate::correlate`]) within
+    /// [`CorrelationConfig::search_radius_m`] of the prior position (else the last fix), with
+    /// the prior heading (else the last fix's, else a sweep of
+    /// [`CorrelationConfig::rotation_hypotheses`] angles). The map is used as it stands (a
+    /// virtual frame is never the reason to upsample it).
+    fn correlate_view(
+        &mut self,
+        view: &FrameView<'_>,
+        coverage: Option<&Coverage>,
+        prior: &Prior,
+        start: Instant,
+    ) -> Outcome {
+        let cfg = self.config.correlation;
+        let centre = prior
+            .position
+            .map(|[x, y]| (x, y))
+            .or(self.state.last_position);
+        let Some((px, py)) = centre else {
+            return self.fail(FailureReason::NoPrior, 0, false, start);
+        };
+        let own_heading = self
+            .config
+            .use_last_heading
+            .then_some(self.state.heading)
+            .flatten();
+        let angles: Vec<f64> = match prior.heading.or(own_heading) {
+            Some(h) => vec![h],
+            None => {
+                let n = cfg.rotation_hypotheses.max(1);
+                (0..n)
+                    .map(|i| i as f64 * std::f64::consts::TAU / n as f64)
+                    .collect()
+            }
+        };
+        let expected = self.expected_scale(view.altitude * view.zoom);
+        let principal = (self.camera.cx, self.camera.cy);
+        let map = self.tiles.map();
+        let radius = (cfg.search_radius_m / self.tiles.gsd_m()).ceil() as i64;
+        let (pu, pv) = self.tiles.world_to_pixel(px, py);
+        let mut best: Option<Placement> = None;
+        let mut last_miss = NoPeak::TooSmall { valid_px: 0 };
+        for &angle in &angles {
+            let normalised = normalise_lens(view.image, None, principal, expected, angle, None);
+            let (vw, vh) = normalised.image.dimensions();
+            let (vw, vh) = (vw as usize, vh as usize);
+            let valid: Vec<bool> = match coverage {
+                Some(c) => {
+                    let img = c.image();
+                    let (vals, inside) = resample(&img, vw, vh, 1, |u, v| {
+                        Some(normalised.transform.inverse(u, v))
+                    });
+                    vals.iter()
+                        .zip(&inside)
+                        .map(|(&v, &i)| i && v > 254.5)
+                        .collect()
+                }
+                None => {
+                    let (w, h) = normalised.frame_size;
+                    (0..vw * vh)
+                        .map(|i| {
+                            let (x, y) = normalised
+                                .transform
+                                .inverse((i % vw) as f64, (i / vw) as f64);
+                            x >= 0.0 && y >= 0.0 && x <= w as f64 - 1.0 && y <= h as f64 - 1.0
+                        })
+                        .collect()
+                }
+            };
+            let grid = Grid {
+                width: vw,
+                height: vh,
+                data: normalised
+                    .image
+                    .as_raw()
+                    .iter()
+                    .map(|&p| p as f32)
+                    .collect(),
+            }
+            .gradient_magnitude(cfg.smoothing_px);
+            // The window: the view placed with its principal point at the prior, ± radius.
+            let pc = normalised.transform.forward(principal.0, principal.1);
+            let x0 = ((pu - pc.0).round() as i64 - radius).max(0);
+            let y0 = ((pv - pc.1).round() as i64 - radius).max(0);
+            let x1 = ((pu - pc.0).round() as i64 + radius + vw as i64).min(map.width() as i64);
+            let y1 = ((pv - pc.1).round() as i64 + radius + vh as i64).min(map.height() as i64);
+            if x1 - x0 < vw as i64 || y1 - y0 < vh as i64 {
+                last_miss = NoPeak::TooSmall { valid_px: 0 };
+                continue;
+            }
+            let window = Grid {
+                width: (x1 - x0) as usize,
+                height: (y1 - y0) as usize,
+                data: (y0..y1)
+                    .flat_map(|y| (x0..x1).map(move |x| (x, y)))
+                    .map(|(x, y)| map.get_pixel(x as u32, y as u32)[0] as f32)
+                    .collect(),
+            }
+            .gradient_magnitude(cfg.smoothing_px);
+            match correlate(&grid, &valid, &window, &cfg) {
+                Ok(peak) => {
+                    if best.as_ref().is_none_or(|b| peak.score > b.peak.score) {
+                        best = Some(Placement {
+                            peak,
+                            view: normalised,
+                            window: [x0, y0],
+                            valid,
+                        });
+                    }
+                }
+                Err(miss) => last_miss = miss,
+            }
+        }
+        let searched = angles.len();
+        let Some(Placement {
+            peak,
+            view: normalised,
+            window: [x0, y0],
+            valid,
+        }) = best
+        else {
+            return self.fail(FailureReason::NoPeak(last_miss), searched, false, start);
+        };
+        let (ox, oy) = (x0 as f64 + peak.offset[0], y0 as f64 + peak.offset[1]);
+        let pc = normalised.transform.forward(principal.0, principal.1);
+        let (x, y) = self.tiles.pixel_to_world(ox + pc.0, oy + pc.1);
+        let shift = Matrix3::new(1.0, 0.0, ox, 0.0, 1.0, oy, 0.0, 0.0, 1.0);
+        let h = shift * normalised.transform.matrix();
+        // SSIM of the view's valid pixels against the map under them.
+        let (vw, vh) = normalised.image.dimensions();
+        let (vw, vh) = (vw as usize, vh as usize);
+        let (rx, ry) = (ox.round() as i64, oy.round() as i64);
+        let region: Vec<f32> = (0..vw * vh)
+            .map(|i| {
+                let (u, v) = (rx + (i % vw) as i64, ry + (i / vw) as i64);
+                let inside =
+                    u >= 0 && v >= 0 && (u as u32) < map.width() && (v as u32) < map.height();
+                if inside {
+                    map.get_pixel(u as u32, v as u32)[0] as f32
+                } else {
+                    0.0
+                }
+            })
+            .collect();
+        let values: Vec<f32> = normalised
+            .image
+            .as_raw()
+            .iter()
+            .map(|&p| p as f32)
+            .collect();
+        let ssim =
+            ssim_masked(&region, &values, vw, vh, Some(&valid), &self.config.ssim).unwrap_or(0.0);
+        let match_score = peak.score.clamp(0.0, 1.0);
+        let confidence = self.config.confidence.confidence(ssim, match_score);
+        let next_radius = search_radius(confidence);
+        let tile_pos = self.tiles.nearest(x, y, 1).first().copied().unwrap_or(0);
+        let tile = self.tiles.tiles().get(tile_pos).map_or(0, |t| t.index);
+        self.state = SearchState {
+            last_tile: Some(tile_pos),
+            last_position: Some((x, y)),
+            radius: next_radius,
+            heading: Some(normalised.transform.angle),
+        };
+        let fix = Fix {
+            position: [x, y, self.tiles.ground_height(x, y) + view.altitude],
+            confidence,
+            ssim,
+            match_score,
+            tile,
+            inliers: valid.iter().filter(|&&v| v).count(),
+            searched_tiles: searched,
+            global: false,
+            homography: h,
+            heading: normalised.transform.angle,
+            scale: expected,
+            next_radius,
+            ms: start.elapsed().as_secs_f64() * 1e3,
+        };
+        tracing::debug!(?fix.position, fix.confidence, peak.score, peak.second, "virtual frame fix");
+        Outcome::Fix(fix)
     }
 
     fn sweep_angles(&self) -> Vec<f64> {
@@ -565,6 +801,7 @@ impl AbsLocalizer {
     fn search(
         &self,
         frame: &GrayImage,
+        ctx: &ViewContext<'_>,
         tiles: &[usize],
         angles: &[f64],
         scale: f64,
@@ -580,9 +817,9 @@ impl AbsLocalizer {
             let id = match views.iter().position(|(b, _)| angle_eq(*b, a)) {
                 Some(id) => id,
                 None => {
-                    let v = QueryView::through(
+                    let mut v = QueryView::through(
                         frame,
-                        Lens::of(&self.camera, self.config.accept.max_off_axis_deg),
+                        ctx.lens,
                         self.pipeline.detector.as_ref(),
                         principal,
                         scale,
@@ -590,6 +827,17 @@ impl AbsLocalizer {
                         self.config.accept.border_margin_px,
                         self.max_view_size(),
                     )?;
+                    if let Some(c) = ctx.coverage {
+                        // Keypoints next to the fill of a virtual frame see its edge.
+                        let keep: Vec<usize> = (0..v.features.len())
+                            .filter(|&i| {
+                                let [u, w] = v.features.keypoints[i];
+                                let (x, y) = v.normalised.transform.inverse(u as f64, w as f64);
+                                c.covers(x, y)
+                            })
+                            .collect();
+                        v.features = select(&v.features, &keep);
+                    }
                     views.push((a, v));
                     views.len() - 1
                 }
@@ -633,6 +881,7 @@ impl AbsLocalizer {
     fn finish(
         &mut self,
         frame: &GrayImage,
+        ctx: &ViewContext<'_>,
         best: &Candidate,
         altitude: f64,
         searched: usize,
@@ -643,7 +892,7 @@ impl AbsLocalizer {
         let c = h * Point2::new(self.camera.cx, self.camera.cy).to_homogeneous();
         let (u, v) = (c.x / c.z, c.y / c.z);
         let (x, y) = self.tiles.pixel_to_world(u, v);
-        let ssim = self.ssim_of(frame, &h, best.scale).unwrap_or(0.0);
+        let ssim = self.ssim_of(frame, ctx, &h, best.scale).unwrap_or(0.0);
         let match_score = if best.inliers.is_empty() {
             0.0
         } else {
@@ -683,7 +932,13 @@ impl AbsLocalizer {
 
     /// SSIM between the map under the warped frame and the warped frame (area-filtered to map
     /// pixels), over the map pixels the frame covers.
-    fn ssim_of(&self, frame: &GrayImage, h: &Matrix3<f64>, scale: f64) -> Option<f64> {
+    fn ssim_of(
+        &self,
+        frame: &GrayImage,
+        ctx: &ViewContext<'_>,
+        h: &Matrix3<f64>,
+        scale: f64,
+    ) -> Option<f64> {
         let (fw, fh) = (frame.width() as f64, frame.height() as f64);
         let corners: Vec<(f64, f64)> = [
             (0.0, 0.0),
@@ -711,9 +966,15 @@ impl AbsLocalizer {
         }
         let (w, hgt) = ((x1 - x0) as usize + 1, (y1 - y0) as usize + 1);
         let k = (1.0 / scale).ceil().max(1.0) as usize;
-        let lens = Lens::of(&self.camera, self.config.accept.max_off_axis_deg);
-        let (warped, mask) =
-            warp_into_map_lens(frame, lens, h, (x0 as u32, y0 as u32), (w, hgt), k)?;
+        let origin = (x0 as u32, y0 as u32);
+        let (warped, mut mask) = warp_into_map_lens(frame, ctx.lens, h, origin, (w, hgt), k)?;
+        if let Some(c) = ctx.coverage {
+            // Only the map pixels the virtual frame's sources cover.
+            let (covered, _) = warp_into_map_lens(&c.image(), None, h, origin, (w, hgt), k)?;
+            for (m, c) in mask.iter_mut().zip(&covered) {
+                *m &= *c > 254.5;
+            }
+        }
         let region: Vec<f32> = (0..hgt)
             .flat_map(|r| (0..w).map(move |c| (c, r)))
             .map(|(c, r)| map.get_pixel(x0 as u32 + c as u32, y0 as u32 + r as u32)[0] as f32)
@@ -739,6 +1000,112 @@ impl AbsLocalizer {
             global,
             next_radius,
             ms: start.elapsed().as_secs_f64() * 1e3,
+        })
+    }
+}
+
+/// What [`AbsLocalizer::localize_view`] localises: a camera frame (`zoom` 1, every pixel
+/// valid) or a virtual frame rendered with the focal lengths divided by `zoom`.
+#[derive(Debug, Clone, Copy)]
+pub struct FrameView<'a> {
+    /// The camera's size.
+    pub image: &'a GrayImage,
+    /// Altimeter reading of the frame whose ground point is sought, metres.
+    pub altitude: f64,
+    /// Ground per side relative to a camera frame (≥ 1).
+    pub zoom: f64,
+    /// Row-major validity of the pixels (a virtual frame's coverage); `None`: all valid.
+    pub valid: Option<&'a [bool]>,
+}
+
+impl<'a> FrameView<'a> {
+    /// A camera frame.
+    pub fn frame(image: &'a GrayImage, altitude: f64) -> Self {
+        Self {
+            image,
+            altitude,
+            zoom: 1.0,
+            valid: None,
+        }
+    }
+}
+
+/// The best placement of a virtual frame: its view and where that sits in the map.
+struct Placement {
+    peak: crate::correlate::Peak,
+    view: crate::warp::NormalisedFrame,
+    /// Map pixel of the correlation window's corner.
+    window: [i64; 2],
+    valid: Vec<bool>,
+}
+
+/// How the search reads the frame: its lens (none for a virtual frame, an ideal pinhole)
+/// and, for a virtual frame, the pixels it covers.
+struct ViewContext<'a> {
+    lens: Option<Lens>,
+    coverage: Option<&'a Coverage>,
+}
+
+/// A validity mask eroded by the keypoint border margin.
+struct Coverage {
+    width: usize,
+    height: usize,
+    inner: Vec<bool>,
+}
+
+impl Coverage {
+    /// `valid` eroded by a square of `margin` pixels each way (two 1-D passes).
+    fn eroded(valid: &[bool], width: usize, height: usize, margin: usize) -> Self {
+        let run = |get: &dyn Fn(usize) -> bool, n: usize| -> Vec<bool> {
+            // Out[i] = all of get(i − m ..= i + m) inside [0, n).
+            let mut prefix = vec![0usize; n + 1];
+            for i in 0..n {
+                prefix[i + 1] = prefix[i] + usize::from(!get(i));
+            }
+            (0..n)
+                .map(|i| {
+                    let (a, b) = (i.saturating_sub(margin), (i + margin + 1).min(n));
+                    i >= margin && i + margin < n && prefix[b] == prefix[a]
+                })
+                .collect()
+        };
+        let mut rows = vec![false; width * height];
+        for y in 0..height {
+            let r = run(&|x| valid[y * width + x], width);
+            rows[y * width..(y + 1) * width].copy_from_slice(&r);
+        }
+        let mut inner = vec![false; width * height];
+        for x in 0..width {
+            let c = run(&|y| rows[y * width + x], height);
+            for (y, v) in c.into_iter().enumerate() {
+                inner[y * width + x] = v;
+            }
+        }
+        Self {
+            width,
+            height,
+            inner,
+        }
+    }
+
+    /// Whether frame pixel `(x, y)` (nearest) is well inside the covered area.
+    fn covers(&self, x: f64, y: f64) -> bool {
+        let (u, v) = (x.round(), y.round());
+        u >= 0.0
+            && v >= 0.0
+            && (u as usize) < self.width
+            && (v as usize) < self.height
+            && self.inner[v as usize * self.width + u as usize]
+    }
+
+    /// The eroded mask as an image (255 covered, 0 not), for warping with the frame.
+    fn image(&self) -> GrayImage {
+        GrayImage::from_fn(self.width as u32, self.height as u32, |u, v| {
+            image::Luma([if self.inner[v as usize * self.width + u as usize] {
+                255
+            } else {
+                0
+            }])
         })
     }
 }
