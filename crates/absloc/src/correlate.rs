@@ -38,6 +38,12 @@ pub struct CorrelationConfig {
     /// Angles tried when no heading is known: 24 leaves ≤ 7.5° of rotation, which a
     /// 200-pixel view still correlates through.
     pub rotation_hypotheses: usize,
+    /// The heading is refined around the given one (or the sweep's best) by halving steps,
+    /// starting at this step (given heading), degrees: the prior's heading comes from the
+    /// SLAM and earlier fixes, and a few degrees off turn a 50 m view by metres at its end.
+    pub heading_step_deg: f64,
+    /// The smallest step of that refinement, degrees.
+    pub min_heading_step_deg: f64,
 }
 
 impl Default for CorrelationConfig {
@@ -50,6 +56,8 @@ impl Default for CorrelationConfig {
             exclusion_px: 4,
             min_valid_px: 1500,
             rotation_hypotheses: 24,
+            heading_step_deg: 2.0,
+            min_heading_step_deg: 0.5,
         }
     }
 }

@@ -648,78 +648,44 @@ impl AbsLocalizer {
         let (pu, pv) = self.tiles.world_to_pixel(px, py);
         let mut best: Option<Placement> = None;
         let mut last_miss = NoPeak::TooSmall { valid_px: 0 };
-        for &angle in &angles {
-            let normalised = normalise_lens(view.image, None, principal, expected, angle, None);
-            let (vw, vh) = normalised.image.dimensions();
-            let (vw, vh) = (vw as usize, vh as usize);
-            let valid: Vec<bool> = match coverage {
-                Some(c) => {
-                    let img = c.image();
-                    let (vals, inside) = resample(&img, vw, vh, 1, |u, v| {
-                        Some(normalised.transform.inverse(u, v))
-                    });
-                    vals.iter()
-                        .zip(&inside)
-                        .map(|(&v, &i)| i && v > 254.5)
-                        .collect()
+        let mut searched = 0usize;
+        let mut consider = |this: &Self,
+                            angle: f64,
+                            centre: (f64, f64),
+                            radius: i64,
+                            best: &mut Option<Placement>| {
+            searched += 1;
+            match this.place(view, coverage, angle, expected, centre, radius) {
+                Ok(p) if best.as_ref().is_none_or(|b| p.peak.score > b.peak.score) => {
+                    *best = Some(p)
                 }
-                None => {
-                    let (w, h) = normalised.frame_size;
-                    (0..vw * vh)
-                        .map(|i| {
-                            let (x, y) = normalised
-                                .transform
-                                .inverse((i % vw) as f64, (i / vw) as f64);
-                            x >= 0.0 && y >= 0.0 && x <= w as f64 - 1.0 && y <= h as f64 - 1.0
-                        })
-                        .collect()
-                }
-            };
-            let grid = Grid {
-                width: vw,
-                height: vh,
-                data: normalised
-                    .image
-                    .as_raw()
-                    .iter()
-                    .map(|&p| p as f32)
-                    .collect(),
-            }
-            .gradient_magnitude(cfg.smoothing_px);
-            // The window: the view placed with its principal point at the prior, ± radius.
-            let pc = normalised.transform.forward(principal.0, principal.1);
-            let x0 = ((pu - pc.0).round() as i64 - radius).max(0);
-            let y0 = ((pv - pc.1).round() as i64 - radius).max(0);
-            let x1 = ((pu - pc.0).round() as i64 + radius + vw as i64).min(map.width() as i64);
-            let y1 = ((pv - pc.1).round() as i64 + radius + vh as i64).min(map.height() as i64);
-            if x1 - x0 < vw as i64 || y1 - y0 < vh as i64 {
-                last_miss = NoPeak::TooSmall { valid_px: 0 };
-                continue;
-            }
-            let window = Grid {
-                width: (x1 - x0) as usize,
-                height: (y1 - y0) as usize,
-                data: (y0..y1)
-                    .flat_map(|y| (x0..x1).map(move |x| (x, y)))
-                    .map(|(x, y)| map.get_pixel(x as u32, y as u32)[0] as f32)
-                    .collect(),
-            }
-            .gradient_magnitude(cfg.smoothing_px);
-            match correlate(&grid, &valid, &window, &cfg) {
-                Ok(peak) => {
-                    if best.as_ref().is_none_or(|b| peak.score > b.peak.score) {
-                        best = Some(Placement {
-                            peak,
-                            view: normalised,
-                            window: [x0, y0],
-                            valid,
-                        });
-                    }
-                }
+                Ok(_) => {}
                 Err(miss) => last_miss = miss,
             }
+        };
+        for &angle in &angles {
+            consider(self, angle, (pu, pv), radius, &mut best);
         }
-        let searched = angles.len();
+        // Halve the angle step around the best angle down to the refinement's resolution,
+        // within a few pixels of the best placement.
+        let mut step = if angles.len() > 1 {
+            std::f64::consts::TAU / angles.len() as f64 / 2.0
+        } else {
+            cfg.heading_step_deg.to_radians()
+        };
+        while step >= cfg.min_heading_step_deg.to_radians() * 0.999 {
+            let Some(b) = &best else { break };
+            let angle = b.view.transform.angle;
+            let pc = b.view.transform.forward(principal.0, principal.1);
+            let centre = (
+                b.window[0] as f64 + b.peak.offset[0] + pc.0,
+                b.window[1] as f64 + b.peak.offset[1] + pc.1,
+            );
+            for a in [angle - step, angle + step] {
+                consider(self, a, centre, 3, &mut best);
+            }
+            step /= 2.0;
+        }
         let Some(Placement {
             peak,
             view: normalised,
@@ -786,6 +752,85 @@ impl AbsLocalizer {
         };
         tracing::debug!(?fix.position, fix.confidence, peak.score, peak.second, "virtual frame fix");
         Outcome::Fix(fix)
+    }
+
+    /// The best placement of `view` turned by `angle`, its principal point within `radius` map
+    /// pixels of map pixel `(pu, pv)`.
+    #[allow(clippy::too_many_arguments)]
+    fn place(
+        &self,
+        view: &FrameView<'_>,
+        coverage: Option<&Coverage>,
+        angle: f64,
+        expected: f64,
+        (pu, pv): (f64, f64),
+        radius: i64,
+    ) -> std::result::Result<Placement, NoPeak> {
+        let cfg = self.config.correlation;
+        let principal = (self.camera.cx, self.camera.cy);
+        let map = self.tiles.map();
+        let normalised = normalise_lens(view.image, None, principal, expected, angle, None);
+        let (vw, vh) = normalised.image.dimensions();
+        let (vw, vh) = (vw as usize, vh as usize);
+        let valid: Vec<bool> = match coverage {
+            Some(c) => {
+                let img = c.image();
+                let (vals, inside) = resample(&img, vw, vh, 1, |u, v| {
+                    Some(normalised.transform.inverse(u, v))
+                });
+                vals.iter()
+                    .zip(&inside)
+                    .map(|(&v, &i)| i && v > 254.5)
+                    .collect()
+            }
+            None => {
+                let (w, h) = normalised.frame_size;
+                (0..vw * vh)
+                    .map(|i| {
+                        let (x, y) = normalised
+                            .transform
+                            .inverse((i % vw) as f64, (i / vw) as f64);
+                        x >= 0.0 && y >= 0.0 && x <= w as f64 - 1.0 && y <= h as f64 - 1.0
+                    })
+                    .collect()
+            }
+        };
+        let grid = Grid {
+            width: vw,
+            height: vh,
+            data: normalised
+                .image
+                .as_raw()
+                .iter()
+                .map(|&p| p as f32)
+                .collect(),
+        }
+        .gradient_magnitude(cfg.smoothing_px);
+        // The window: the view placed with its principal point at the prior, ± radius.
+        let pc = normalised.transform.forward(principal.0, principal.1);
+        let x0 = ((pu - pc.0).round() as i64 - radius).max(0);
+        let y0 = ((pv - pc.1).round() as i64 - radius).max(0);
+        let x1 = ((pu - pc.0).round() as i64 + radius + vw as i64).min(map.width() as i64);
+        let y1 = ((pv - pc.1).round() as i64 + radius + vh as i64).min(map.height() as i64);
+        if x1 - x0 < vw as i64 || y1 - y0 < vh as i64 {
+            return Err(NoPeak::TooSmall { valid_px: 0 });
+        }
+        let window = Grid {
+            width: (x1 - x0) as usize,
+            height: (y1 - y0) as usize,
+            data: (y0..y1)
+                .flat_map(|y| (x0..x1).map(move |x| (x, y)))
+                .map(|(x, y)| map.get_pixel(x as u32, y as u32)[0] as f32)
+                .collect(),
+        }
+        .gradient_magnitude(cfg.smoothing_px);
+        let peak = correlate(&grid, &valid, &window, &cfg)?;
+        Ok(Placement {
+            peak,
+            view: normalised,
+            window: [x0, y0],
+            valid,
+        })
     }
 
     fn sweep_angles(&self) -> Vec<f64> {

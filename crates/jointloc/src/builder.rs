@@ -16,6 +16,7 @@ use crate::faults::FaultyFixes;
 use crate::fix_source::FixSource;
 use crate::observer::Observer;
 use crate::system::{JointLoc, Mode};
+use crate::virtual_frames::VirtualFrames;
 
 /// Builds a [`JointLoc`]; see [`JointLoc::builder`].
 pub struct JointLocBuilder {
@@ -98,6 +99,7 @@ impl JointLocBuilder {
         let config = self.config;
         config.validate()?;
         let ground = self.tiles.ground();
+        let map_gsd_m = self.tiles.gsd_m();
         let source: Box<dyn FixSource> = match self.source {
             Some(source) => source,
             None => {
@@ -125,6 +127,15 @@ impl JointLocBuilder {
         let mut slam_config = config.slam.clone();
         slam_config.loop_closing.global_ba_thread = self.mode == Mode::Threaded;
         let slam = System::new(self.camera, slam_config)?;
-        JointLoc::assemble(slam, source, self.mode, ground, self.observers, config)
+        let virtual_frames = VirtualFrames::new(config.mosaic, self.camera, map_gsd_m);
+        JointLoc::assemble(
+            slam,
+            source,
+            self.mode,
+            ground,
+            virtual_frames,
+            self.observers,
+            config,
+        )
     }
 }

@@ -1,5 +1,6 @@
 //! Settings of the fused system.
 
+use crate::virtual_frames::MosaicConfig;
 use jointloc_absloc::AbsLocConfig;
 use jointloc_slam::system::SystemConfig;
 use serde::{Deserialize, Serialize};
@@ -110,6 +111,8 @@ pub struct JointLocConfig {
     pub final_ba: FinalBaConfig,
     /// Fault injection for robustness runs (off by default).
     pub faults: FaultConfig,
+    /// Fixes through virtual frames where a frame is too small on the map.
+    pub mosaic: MosaicConfig,
 }
 
 impl Default for JointLocConfig {
@@ -139,6 +142,7 @@ impl Default for JointLocConfig {
             terrain: TerrainConfig::default(),
             final_ba: FinalBaConfig::default(),
             faults: FaultConfig::default(),
+            mosaic: MosaicConfig::default(),
         }
     }
 }

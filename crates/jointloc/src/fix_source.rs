@@ -4,7 +4,7 @@
 //! (a test's fixes from ground truth, another localiser) without the fusion knowing.
 
 use image::GrayImage;
-use jointloc_absloc::{AbsLocalizer, AbslocError, Outcome, Prior};
+use jointloc_absloc::{AbsLocalizer, AbslocError, FrameView, Outcome, Prior};
 
 /// One request: the frame, its altimeter reading and where the fusion expects it.
 #[derive(Debug, Clone, Copy)]
@@ -16,6 +16,11 @@ pub struct FixRequest<'a> {
     /// Altimeter reading, metres above the ground.
     pub altitude: f64,
     pub prior: &'a Prior,
+    /// 1 for a camera frame; a virtual frame ([`crate::virtual_frames`]) covers `zoom` times
+    /// more ground per side.
+    pub zoom: f64,
+    /// A virtual frame's covered pixels (row-major); `None`: every pixel.
+    pub valid: Option<&'a [bool]>,
 }
 
 /// What a source gives for a request.
@@ -35,7 +40,13 @@ pub trait FixSource: Send + std::fmt::Debug {
 
 impl FixSource for AbsLocalizer {
     fn localize(&mut self, request: &FixRequest<'_>) -> Result<Option<Located>, AbslocError> {
-        let outcome = AbsLocalizer::localize(self, request.image, request.altitude, request.prior)?;
+        let view = FrameView {
+            image: request.image,
+            altitude: request.altitude,
+            zoom: request.zoom,
+            valid: request.valid,
+        };
+        let outcome = self.localize_view(&view, request.prior)?;
         Ok(Some(Located {
             outcome,
             injected: false,

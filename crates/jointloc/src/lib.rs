@@ -55,6 +55,7 @@ mod records;
 pub mod system;
 pub mod terrain_shift;
 mod ties;
+pub mod virtual_frames;
 mod worker;
 
 pub use builder::JointLocBuilder;

@@ -83,4 +83,8 @@ pub struct FusionTiming {
     pub skipped_outage: usize,
     /// Frames due for absolute localisation before the SLAM tracked them (threaded mode).
     pub skipped_untracked: usize,
+    /// Searches made through a virtual frame ([`crate::virtual_frames`]).
+    pub virtual_frames: usize,
+    /// Frames due whose virtual frame could not be made (too little covered, not tracked).
+    pub skipped_no_view: usize,
 }

@@ -35,6 +35,7 @@ use crate::observer::Observer;
 pub use crate::records::{FixRecord, FusedFrame, FusionTiming};
 use crate::terrain_shift::TerrainCorrection;
 use crate::ties::Tie;
+use crate::virtual_frames::VirtualFrames;
 use crate::worker::AbsoluteWorker;
 
 /// The state at the frame an absolute search was started for, so its fix can be tied when it
@@ -109,6 +110,8 @@ pub struct JointLoc {
     pub(crate) merged_spans: Vec<(f64, f64)>,
     /// Maps set aside after a loss and merged back ([`crate::map_merge`]).
     pub(crate) maps_merged: usize,
+    /// Recent frames for fixes from more than one frame.
+    pub(crate) virtual_frames: VirtualFrames,
 }
 
 impl std::fmt::Debug for JointLoc {
@@ -149,6 +152,7 @@ impl JointLoc {
         source: Box<dyn FixSource>,
         mode: Mode,
         ground: jointloc_absloc::Ground,
+        virtual_frames: VirtualFrames,
         observers: Vec<Box<dyn Observer>>,
         config: JointLocConfig,
     ) -> Result<Self> {
@@ -194,6 +198,7 @@ impl JointLoc {
             loops_closed: 0,
             merged_spans: Vec::new(),
             maps_merged: 0,
+            virtual_frames,
         })
     }
 
@@ -309,9 +314,35 @@ impl JointLoc {
         self.loops_closed += usize::from(r.loop_closed.is_some());
         self.start_new_map_if_lost_for_good(r.state, timestamp)?;
         let mut absolute = Vec::new();
+        let (scale, up) = match &self.alignment {
+            Some(a) => (a.sim3.scale, Some(a.sim3.rotation.inverse() * Vector3::z())),
+            None => (1.0, None),
+        };
+        self.virtual_frames.push(image, r.pose, altitude, scale);
         if index.is_multiple_of(self.config.fusion_every)
             && let Some(alt) = altitude
         {
+            // A frame too small on the map is searched through a virtual frame.
+            let view = match (self.virtual_frames.zoom(alt), r.pose) {
+                (None, _) => Some(None),
+                (Some(zoom), Some(pose)) => self.virtual_frames.up(up).and_then(|up| {
+                    self.virtual_frames
+                        .render(&pose, alt, zoom, scale, up)
+                        .map(Some)
+                }),
+                (Some(_), None) => None,
+            };
+            let Some(view) = view else {
+                self.timing.skipped_no_view += 1;
+                return self.finish_frame(index, timestamp, altitude, r, absolute, start);
+            };
+            if view.is_some() {
+                self.timing.virtual_frames += 1;
+            }
+            let (image, zoom, valid) = match &view {
+                Some(m) => (&m.image, m.zoom, Some(m.valid.as_slice())),
+                None => (image, 1.0, None),
+            };
             let map = self.slam.map();
             let submitted = Submitted {
                 frame: index,
@@ -327,6 +358,8 @@ impl JointLoc {
                 image,
                 altitude: alt,
                 prior: &prior,
+                zoom,
+                valid,
             };
             match &mut self.absolute {
                 Absolute::Inline(source) => {
@@ -349,6 +382,20 @@ impl JointLoc {
                 }
             }
         }
+        self.finish_frame(index, timestamp, altitude, r, absolute, start)
+    }
+
+    /// The rest of [`Self::process`] once the absolute search (if any) is made: results of the
+    /// thread, z, the world pose, the online record and the observers.
+    fn finish_frame(
+        &mut self,
+        index: usize,
+        timestamp: f64,
+        altitude: Option<f64>,
+        r: jointloc_slam::system::FrameResult,
+        mut absolute: Vec<(usize, Outcome)>,
+        start: Instant,
+    ) -> Result<FusedFrame> {
         while let Some((frame, outcome)) = self.next_finished(false)? {
             absolute.extend(outcome.map(|o| (frame, o)));
         }

@@ -177,6 +177,12 @@ impl JointLoc {
         let (Some(a), true) = (&self.alignment, config.gain > 0.0) else {
             return;
         };
+        // Low over a coarse map (virtual frames): the points of the last fixes span a few
+        // posts of a smoothed DTM, and the estimate follows its noise and the rocks it smooths
+        // away (`docs/jointloc.md` §"10 m over a 25 cm map").
+        if self.virtual_frames.in_use() && !self.config.mosaic.terrain_correction {
+            return;
+        }
         if !self.altitude.ground().has_model() {
             return;
         }

@@ -18,6 +18,8 @@ struct Request {
     image: GrayImage,
     altitude: f64,
     prior: Prior,
+    zoom: f64,
+    valid: Option<Vec<bool>>,
 }
 
 /// A finished search: the frame it was for and its outcome (`None`: the source made no
@@ -57,6 +59,8 @@ impl AbsoluteWorker {
                         image: &r.image,
                         altitude: r.altitude,
                         prior: &r.prior,
+                        zoom: r.zoom,
+                        valid: r.valid.as_deref(),
                     });
                     if res_tx.send((r.frame, out)).is_err() {
                         break;
@@ -88,6 +92,8 @@ impl AbsoluteWorker {
             image: request.image.clone(),
             altitude: request.altitude,
             prior: *request.prior,
+            zoom: request.zoom,
+            valid: request.valid.map(<[bool]>::to_vec),
         };
         // At most one request is ever outstanding (`busy`), so the slot is free.
         match tx.try_send(request) {

@@ -35,7 +35,7 @@ pub(super) fn print(outputs: &Outputs) {
     println!(
         "fixes: {} attempts, {} found, {} used, {} inliers of the final alignment; \
          {} skipped (thread busy), {} skipped (not tracked yet), {} skipped (outage), \
-         {} made wrong on purpose",
+         {} made wrong on purpose; {} through virtual frames, {} without one",
         s.absolute_attempts,
         s.fixes_found,
         s.fixes_used,
@@ -43,7 +43,9 @@ pub(super) fn print(outputs: &Outputs) {
         s.skipped_busy,
         s.skipped_untracked,
         s.skipped_outage,
-        s.fixes_injected_wrong
+        s.fixes_injected_wrong,
+        s.virtual_frames,
+        s.skipped_no_view
     );
     let terrain = &s.terrain_correction;
     if terrain.updates > 0 {

@@ -82,6 +82,13 @@ pub struct Summary {
     pub skipped_busy: usize,
     pub skipped_outage: usize,
     pub skipped_untracked: usize,
+    /// Absolute searches made through a virtual frame (a mosaic of recent frames).
+    #[serde(default)]
+    pub virtual_frames: usize,
+    /// Frames due for absolute localisation whose virtual frame covered too little (or had
+    /// no tracked frames yet).
+    #[serde(default)]
+    pub skipped_no_view: usize,
     pub fixes_injected_wrong: usize,
     pub first_fix_global: Option<bool>,
     pub first_fix_searched_tiles: Option<usize>,
