@@ -44,6 +44,10 @@ pub struct CorrelationConfig {
     pub heading_step_deg: f64,
     /// The smallest step of that refinement, degrees.
     pub min_heading_step_deg: f64,
+    /// A placement whose confidence (SSIM × correlation, the paper's `w`) is below this is
+    /// no fix. On six development flights at 10 m (three under suns 41–156° apart) all 20
+    /// placements more than 2 m off had w < 0.06 and 416 of the 421 within 1 m had w ≥ 0.08.
+    pub min_confidence: f64,
 }
 
 impl Default for CorrelationConfig {
@@ -58,6 +62,7 @@ impl Default for CorrelationConfig {
             rotation_hypotheses: 24,
             heading_step_deg: 2.0,
             min_heading_step_deg: 0.5,
+            min_confidence: 0.07,
         }
     }
 }
@@ -172,6 +177,8 @@ pub enum NoPeak {
     Low { score: f64 },
     /// Another placement is almost as good.
     Ambiguous { score: f64, second: f64 },
+    /// The confidence of the best placement is too low.
+    LowConfidence { confidence: f64 },
 }
 
 /// Masked correlation of `view` (pixels where `valid`) at every placement in `window`.

@@ -726,6 +726,14 @@ impl AbsLocalizer {
             ssim_masked(&region, &values, vw, vh, Some(&valid), &self.config.ssim).unwrap_or(0.0);
         let match_score = peak.score.clamp(0.0, 1.0);
         let confidence = self.config.confidence.confidence(ssim, match_score);
+        if confidence < cfg.min_confidence {
+            return self.fail(
+                FailureReason::NoPeak(NoPeak::LowConfidence { confidence }),
+                searched,
+                false,
+                start,
+            );
+        }
         let next_radius = search_radius(confidence);
         let tile_pos = self.tiles.nearest(x, y, 1).first().copied().unwrap_or(0);
         let tile = self.tiles.tiles().get(tile_pos).map_or(0, |t| t.index);

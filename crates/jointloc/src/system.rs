@@ -38,6 +38,10 @@ use crate::ties::Tie;
 use crate::virtual_frames::VirtualFrames;
 use crate::worker::AbsoluteWorker;
 
+/// An elevation model stated this precise (or better) needs no longer z window than the
+/// altimeter does.
+const DEM_SIGMA_REFERENCE_M: f64 = 0.1;
+
 /// The state at the frame an absolute search was started for, so its fix can be tied when it
 /// arrives: the frame's SLAM pose and the then current keyframe with its pose then.
 #[derive(Debug, Clone)]
@@ -322,8 +326,11 @@ impl JointLoc {
         if index.is_multiple_of(self.config.fusion_every)
             && let Some(alt) = altitude
         {
-            // A frame too small on the map is searched through a virtual frame.
+            // A frame too small on the map is searched through a virtual frame, rendered only
+            // when the search can start (the thread idle).
+            let busy = matches!(&self.absolute, Absolute::Thread(w) if w.is_busy());
             let view = match (self.virtual_frames.zoom(alt), r.pose) {
+                (Some(_), Some(_)) if busy => Some(None),
                 (None, _) => Some(None),
                 (Some(zoom), Some(pose)) => self.virtual_frames.up(up).and_then(|up| {
                     self.virtual_frames
@@ -404,10 +411,15 @@ impl JointLoc {
         }
         match (r.pose, altitude) {
             (Some(p), Some(alt)) => {
-                // The altimeter's noise is a share of the range: average longer up high.
-                let loose = self.config.range_looseness(alt);
+                // The altimeter's noise is a share of the range: average longer up high; and
+                // over a coarse elevation model (z = model + altimeter) average its noise
+                // over more ground: ×(stated σ / 0.1 m), 2.5 for a HiRISE-class DTM
+                // (`docs/jointloc.md` §"10 m over a 25 cm map").
+                let loose = self.config.range_looseness(alt).sqrt();
+                let coarse =
+                    self.altitude.ground().stated_sigma_m().unwrap_or(0.0) / DEM_SIGMA_REFERENCE_M;
                 self.altitude
-                    .set_window_s(self.config.altitude_window_s * loose.sqrt());
+                    .set_window_s(self.config.altitude_window_s * loose.max(coarse));
                 self.altitude.push(timestamp, p.centre(), alt)
             }
             (None, _) => self.altitude.clear(),

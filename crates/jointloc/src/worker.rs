@@ -78,6 +78,11 @@ impl AbsoluteWorker {
         })
     }
 
+    /// Whether a search is in flight (a request now would be refused).
+    pub(crate) fn is_busy(&self) -> bool {
+        self.busy
+    }
+
     /// Hands a frame to the thread if it is idle; false (frame skipped) when it is busy.
     pub(crate) fn try_submit(&mut self, request: &FixRequest<'_>) -> bool {
         if self.busy {
