@@ -59,9 +59,20 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let t0 = std::time::Instant::now();
         let m = render(&camera, &gt, &plane, zoom, &sources, 4.0);
         render_ms.push(t0.elapsed().as_secs_f64() * 1e3);
-        let prior = Prior {
-            position: Some([c.x + 3.0, c.y - 2.0]),
-            heading: Some(heading_from_rotation(&gt.rotation().to_rotation_matrix())),
+        // SWEEP=1: no heading, the prior at the first frame (a take-off position).
+        let sweep = std::env::var("SWEEP").is_ok();
+        let first = ds.frames[0].ground_truth.map_or(c, |p| p.centre());
+        let prior = if sweep {
+            loc.reset();
+            Prior {
+                position: Some([first.x, first.y]),
+                heading: None,
+            }
+        } else {
+            Prior {
+                position: Some([c.x + 3.0, c.y - 2.0]),
+                heading: Some(heading_from_rotation(&gt.rotation().to_rotation_matrix())),
+            }
         };
         let view = FrameView {
             image: &m.image,
