@@ -1,0 +1,148 @@
+//! Virtual frames (`AbsLocalizer::localize_view` with a zoom): a strip of a synthetic map,
+//! seen as the orthographic virtual frame of a UAV at 10 m with zoom 5, is registered by
+//! correlation around a prior a few metres off and with the heading 1.5° off: the fix is
+//! the map point under the principal point, the heading is refined; too far a prior, or none,
+//! gives a failure, never a wrong fix.
+
+mod common;
+
+use std::path::Path;
+
+use common::{frame_from_map, texture};
+use jointloc_absloc::correlate::NoPeak;
+use jointloc_absloc::registry::{RegistryOptions, resolve};
+use jointloc_absloc::{
+    AbsLocConfig, AbsLocalizer, FailureReason, FrameView, MapTiles, Outcome, Prior,
+};
+use jointloc_geometry::PinholeCamera;
+
+const GSD: f64 = 0.25;
+const ALT: f64 = 10.0;
+const ZOOM: f64 = 5.0;
+
+fn localizer(seed: u64) -> AbsLocalizer {
+    let map = MapTiles::from_image(
+        texture(1000, 1000, seed),
+        GSD,
+        (500, 500),
+        0.5,
+        Path::new("."),
+    )
+    .unwrap();
+    let pipeline = resolve("orb", &RegistryOptions::default()).unwrap();
+    AbsLocalizer::new(
+        map,
+        PinholeCamera::ideal(500.0, 500, 500),
+        pipeline,
+        AbsLocConfig {
+            cache: false,
+            ..Default::default()
+        },
+    )
+    .unwrap()
+}
+
+/// A diagonal strip 140 pixels wide through the centre: the track of the last frames.
+fn strip() -> Vec<bool> {
+    (0..500 * 500)
+        .map(|i| {
+            let (x, y) = ((i % 500) as f64, (i / 500) as f64);
+            (x - y).abs() < 100.0 && x > 100.0
+        })
+        .collect()
+}
+
+#[test]
+fn a_strip_seen_from_10_m_is_placed_to_a_tenth_of_a_map_pixel() {
+    for (seed, (u, v), heading) in [(1u64, (480.0, 530.0), 0.6), (2, (610.0, 420.0), 2.4)] {
+        let mut loc = localizer(seed);
+        let scale = ALT * ZOOM / (500.0 * GSD);
+        let image = frame_from_map(loc.tiles().map(), (u, v), scale, heading, 500);
+        let valid = strip();
+        let view = FrameView {
+            image: &image,
+            altitude: ALT,
+            zoom: ZOOM,
+            valid: Some(&valid),
+        };
+        let (x, y) = loc.tiles().pixel_to_world(u, v);
+        let prior = Prior {
+            position: Some([x + 4.0, y - 3.0]),
+            heading: Some(heading + 1.5f64.to_radians()),
+        };
+        let out = loc.localize_view(&view, &prior).unwrap();
+        let fix = out.fix().unwrap_or_else(|| panic!("seed {seed}: {out:?}"));
+        let err = (fix.position[0] - x).hypot(fix.position[1] - y);
+        eprintln!(
+            "seed {seed}: {err:.4} m, heading error {:.3} deg",
+            (fix.heading - heading).to_degrees()
+        );
+        assert!(err < 0.1 * GSD, "seed {seed}: {err} m");
+        assert!(
+            (fix.heading - heading).abs() < 0.6f64.to_radians(),
+            "seed {seed}: heading {} vs {heading}",
+            fix.heading
+        );
+        assert!(
+            (fix.position[2] - ALT).abs() < 1e-9,
+            "z = ground 0 + altitude"
+        );
+        assert!(fix.confidence > 0.0 && fix.confidence <= 1.0);
+
+        // 60 m off: the true place is outside the search; no fix rather than a wrong one.
+        let far = Prior {
+            position: Some([x + 60.0, y]),
+            heading: Some(heading),
+        };
+        match loc.localize_view(&view, &far).unwrap() {
+            Outcome::Failed(f) => assert!(matches!(f.reason, FailureReason::NoPeak(_))),
+            Outcome::Fix(f) => {
+                let e = (f.position[0] - x).hypot(f.position[1] - y);
+                panic!("seed {seed}: a fix {e} m off from a prior 60 m off")
+            }
+        }
+    }
+}
+
+#[test]
+fn no_prior_no_fix_and_too_little_ground_is_refused() {
+    let mut loc = localizer(3);
+    let image = frame_from_map(loc.tiles().map(), (500.0, 500.0), 0.4, 0.0, 500);
+    let valid = strip();
+    let view = FrameView {
+        image: &image,
+        altitude: ALT,
+        zoom: ZOOM,
+        valid: Some(&valid),
+    };
+    let out = loc.localize_view(&view, &Prior::default()).unwrap();
+    assert!(
+        matches!(&out, Outcome::Failed(f) if f.reason == FailureReason::NoPrior),
+        "{out:?}"
+    );
+    // A sliver of 40 × 20 pixels: too small to correlate.
+    let sliver: Vec<bool> = (0..500 * 500)
+        .map(|i| (230..270).contains(&(i % 500)) && (240..260).contains(&(i / 500)))
+        .collect();
+    let view = FrameView {
+        valid: Some(&sliver),
+        ..view
+    };
+    let (x, y) = loc.tiles().pixel_to_world(500.0, 500.0);
+    let prior = Prior {
+        position: Some([x, y]),
+        heading: Some(0.0),
+    };
+    let out = loc.localize_view(&view, &prior).unwrap();
+    assert!(
+        matches!(&out, Outcome::Failed(f) if matches!(f.reason, FailureReason::NoPeak(NoPeak::TooSmall { .. }))),
+        "{out:?}"
+    );
+    // A mask of the wrong length is an error.
+    let short = vec![true; 10];
+    let bad = FrameView {
+        valid: Some(&short),
+        ..view
+    };
+    assert!(loc.localize_view(&bad, &prior).is_err());
+}
