@@ -5,37 +5,15 @@
 
 mod common;
 
-use std::path::Path;
-
-use common::{frame_from_map, texture};
-use jointloc_absloc::registry::{RegistryOptions, resolve};
-use jointloc_absloc::{AbsLocConfig, AbsLocalizer, FailureReason, MapTiles, Outcome, Prior};
-use jointloc_geometry::PinholeCamera;
+use common::{frame_from_map, orb_localizer, texture};
+use jointloc_absloc::{AbsLocConfig, AbsLocalizer, FailureReason, Outcome, Prior};
 
 const GSD: f64 = 0.05;
 const ALT: f64 = 10.0;
 
 /// A map of `side × side` pixels (1000: 3 × 3 tiles, 2000: 7 × 7).
 fn localizer(seed: u64, side: u32, config: AbsLocConfig) -> AbsLocalizer {
-    let map = MapTiles::from_image(
-        texture(side, side, seed),
-        GSD,
-        (500, 500),
-        0.5,
-        Path::new("."),
-    )
-    .unwrap();
-    let pipeline = resolve("orb", &RegistryOptions::default()).unwrap();
-    AbsLocalizer::new(
-        map,
-        PinholeCamera::ideal(500.0, 500, 500),
-        pipeline,
-        AbsLocConfig {
-            cache: false,
-            ..config
-        },
-    )
-    .unwrap()
+    orb_localizer(seed, side, GSD, config)
 }
 
 /// Frame at map pixel `(u, v)` with `heading`.

@@ -6,40 +6,16 @@
 
 mod common;
 
-use std::path::Path;
-
-use common::{frame_from_map, texture};
+use common::{frame_from_map, orb_localizer};
 use jointloc_absloc::correlate::NoPeak;
-use jointloc_absloc::registry::{RegistryOptions, resolve};
-use jointloc_absloc::{
-    AbsLocConfig, AbsLocalizer, FailureReason, FrameView, MapTiles, Outcome, Prior,
-};
-use jointloc_geometry::PinholeCamera;
+use jointloc_absloc::{AbsLocConfig, AbsLocalizer, FailureReason, FrameView, Outcome, Prior};
 
 const GSD: f64 = 0.25;
 const ALT: f64 = 10.0;
 const ZOOM: f64 = 5.0;
 
 fn localizer(seed: u64) -> AbsLocalizer {
-    let map = MapTiles::from_image(
-        texture(1000, 1000, seed),
-        GSD,
-        (500, 500),
-        0.5,
-        Path::new("."),
-    )
-    .unwrap();
-    let pipeline = resolve("orb", &RegistryOptions::default()).unwrap();
-    AbsLocalizer::new(
-        map,
-        PinholeCamera::ideal(500.0, 500, 500),
-        pipeline,
-        AbsLocConfig {
-            cache: false,
-            ..Default::default()
-        },
-    )
-    .unwrap()
+    orb_localizer(seed, 1000, GSD, AbsLocConfig::default())
 }
 
 /// A diagonal strip 140 pixels wide through the centre: the track of the last frames.

@@ -7,9 +7,37 @@ use std::path::Path;
 use std::sync::OnceLock;
 
 use image::GrayImage;
+use jointloc_absloc::registry::{RegistryOptions, resolve};
+use jointloc_absloc::{AbsLocConfig, AbsLocalizer, MapTiles};
+use jointloc_geometry::PinholeCamera;
 use jointloc_sim::dataset::{SimConfig, generate_dataset};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
+
+/// A localiser with the ORB pipeline (no model files) on a `side × side` [`texture`] of
+/// `seed` at `gsd` m/px, 500-pixel tiles overlapping by half, a 500 × 500 ideal camera with
+/// f = 500 px, and no feature cache.
+pub fn orb_localizer(seed: u64, side: u32, gsd: f64, config: AbsLocConfig) -> AbsLocalizer {
+    let map = MapTiles::from_image(
+        texture(side, side, seed),
+        gsd,
+        (500, 500),
+        0.5,
+        Path::new("."),
+    )
+    .unwrap();
+    let pipeline = resolve("orb", &RegistryOptions::default()).unwrap();
+    AbsLocalizer::new(
+        map,
+        PinholeCamera::ideal(500.0, 500, 500),
+        pipeline,
+        AbsLocConfig {
+            cache: false,
+            ..config
+        },
+    )
+    .unwrap()
+}
 
 /// A non-repeating texture: random lattices at three scales, bilinearly interpolated.
 pub fn texture(w: u32, h: u32, seed: u64) -> GrayImage {
