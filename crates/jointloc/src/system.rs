@@ -326,22 +326,35 @@ impl JointLoc {
         if index.is_multiple_of(self.config.fusion_every)
             && let Some(alt) = altitude
         {
-            // A frame too small on the map is searched through a virtual frame, rendered only
-            // when the search can start (the thread idle).
+            // A frame too small on the map is searched through a virtual frame: rendered here
+            // in the sequential mode, on the thread in the threaded one (only when it is idle).
             let busy = matches!(&self.absolute, Absolute::Thread(w) if w.is_busy());
-            let view = match (self.virtual_frames.zoom(alt), r.pose) {
+            let job = match (self.virtual_frames.zoom(alt), r.pose) {
                 (Some(_), Some(_)) if busy => Some(None),
                 (None, _) => Some(None),
-                (Some(zoom), Some(pose)) => self.virtual_frames.up(up).and_then(|up| {
-                    self.virtual_frames
-                        .render(&pose, alt, zoom, scale, up)
-                        .map(Some)
-                }),
+                (Some(zoom), Some(pose)) => self
+                    .virtual_frames
+                    .up(up)
+                    .and_then(|up| self.virtual_frames.job(&pose, alt, zoom, scale, up))
+                    .map(Some),
                 (Some(_), None) => None,
             };
-            let Some(view) = view else {
+            let Some(mut job) = job else {
                 self.timing.skipped_no_view += 1;
                 return self.finish_frame(index, timestamp, altitude, r, absolute, start);
+            };
+            let view = match (&self.absolute, job.take()) {
+                (Absolute::Inline(_), Some(j)) => match j.render() {
+                    Some(m) => Some(m),
+                    None => {
+                        self.timing.skipped_no_view += 1;
+                        return self.finish_frame(index, timestamp, altitude, r, absolute, start);
+                    }
+                },
+                (_, j) => {
+                    job = j;
+                    None
+                }
             };
             if view.is_some() {
                 self.timing.virtual_frames += 1;
@@ -381,7 +394,9 @@ impl JointLoc {
                     self.timing.skipped_untracked += 1;
                 }
                 Absolute::Thread(worker) => {
-                    if worker.try_submit(&request) {
+                    let through_virtual_frame = job.is_some();
+                    if worker.try_submit(&request, job) {
+                        self.timing.virtual_frames += usize::from(through_virtual_frame);
                         self.pending.insert(index, submitted);
                     } else {
                         self.timing.skipped_busy += 1;

@@ -9,6 +9,7 @@
 //! would count that geometry twice.
 
 use std::collections::VecDeque;
+use std::sync::Arc;
 
 use image::GrayImage;
 use jointloc_absloc::mosaic::{GroundPlane, Mosaic, MosaicSource, Thumbnail, render};
@@ -59,7 +60,8 @@ impl Default for MosaicConfig {
 #[derive(Debug)]
 struct Kept {
     pose: CameraToWorld,
-    thumbnail: Thumbnail,
+    /// Shared with the jobs handed to the absolute-localisation thread.
+    thumbnail: Arc<Thumbnail>,
     /// Track length from the first kept frame, SLAM units.
     track: f64,
 }
@@ -133,7 +135,7 @@ impl VirtualFrames {
         let factor = (zoom.floor() as u32).max(1);
         self.kept.push_back(Kept {
             pose,
-            thumbnail: Thumbnail::new(image, factor),
+            thumbnail: Arc::new(Thumbnail::new(image, factor)),
             track: self.track,
         });
         let span = self.config.span_m / scale.max(1e-9);
@@ -170,33 +172,70 @@ impl VirtualFrames {
         })
     }
 
-    /// The virtual frame of the newest frame (`pose`), over the plane normal to `up` (the
-    /// SLAM frame's) `altitude` metres below the camera at `scale` metres per SLAM unit.
-    /// `None` when it covers too little. (The plane through the median of the nearby map
-    /// points instead: fewer fixes found and no better, measured on two flights.)
-    pub(crate) fn render(
+    /// What it takes to render the virtual frame of the newest frame (`pose`), over the
+    /// plane normal to `up` (the SLAM frame's) `altitude` metres below the camera at `scale`
+    /// metres per SLAM unit; `None` with fewer than two frames kept. (The plane through the
+    /// median of the nearby map points instead: fewer fixes found and no better, measured on
+    /// two flights.)
+    pub(crate) fn job(
         &self,
         pose: &CameraToWorld,
         altitude: f64,
         zoom: f64,
         scale: f64,
         up: Vector3<f64>,
-    ) -> Option<Mosaic> {
+    ) -> Option<MosaicJob> {
         if self.kept.len() < 2 {
             return None;
         }
         let offset = up.dot(&(pose.centre() - up * (altitude / scale.max(1e-9))).coords);
-        let plane = GroundPlane { normal: up, offset };
+        Some(MosaicJob {
+            camera: self.camera,
+            pose: *pose,
+            plane: GroundPlane { normal: up, offset },
+            zoom,
+            sources: self
+                .kept
+                .iter()
+                .map(|k| (k.pose, Arc::clone(&k.thumbnail)))
+                .collect(),
+            min_coverage: self.config.min_coverage,
+        })
+    }
+}
+
+/// A virtual frame to render: on the tracking thread in the sequential mode, on the
+/// absolute-localisation thread in the threaded one (70–120 ms that tracking need not wait).
+#[derive(Debug, Clone)]
+pub(crate) struct MosaicJob {
+    camera: PinholeCamera,
+    pose: CameraToWorld,
+    plane: GroundPlane,
+    zoom: f64,
+    sources: Vec<(CameraToWorld, Arc<Thumbnail>)>,
+    min_coverage: f64,
+}
+
+impl MosaicJob {
+    /// The virtual frame; `None` when it covers less than the configured share.
+    pub(crate) fn render(&self) -> Option<Mosaic> {
         let sources: Vec<MosaicSource<'_>> = self
-            .kept
+            .sources
             .iter()
-            .map(|k| MosaicSource {
-                pose: k.pose,
-                thumbnail: &k.thumbnail,
+            .map(|(pose, t)| MosaicSource {
+                pose: *pose,
+                thumbnail: t,
             })
             .collect();
-        let mosaic = render(&self.camera, pose, &plane, zoom, &sources, 4.0);
-        (mosaic.coverage >= self.config.min_coverage).then_some(mosaic)
+        let mosaic = render(
+            &self.camera,
+            &self.pose,
+            &self.plane,
+            self.zoom,
+            &sources,
+            4.0,
+        );
+        (mosaic.coverage >= self.min_coverage).then_some(mosaic)
     }
 }
 

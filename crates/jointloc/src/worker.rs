@@ -7,10 +7,12 @@ use std::sync::mpsc::{Receiver, SyncSender, TryRecvError, TrySendError, sync_cha
 use std::thread::JoinHandle;
 
 use image::GrayImage;
-use jointloc_absloc::Prior;
+use jointloc_absloc::correlate::NoPeak;
+use jointloc_absloc::{Failure, FailureReason, Outcome, Prior, search_radius};
 
 use crate::error::{JointLocError, Result};
 use crate::fix_source::{FixRequest, FixSource, Located};
+use crate::virtual_frames::MosaicJob;
 
 struct Request {
     frame: usize,
@@ -20,6 +22,8 @@ struct Request {
     prior: Prior,
     zoom: f64,
     valid: Option<Vec<bool>>,
+    /// A virtual frame to render and search instead of `image`.
+    mosaic: Option<MosaicJob>,
 }
 
 /// A finished search: the frame it was for and its outcome (`None`: the source made no
@@ -53,15 +57,34 @@ impl AbsoluteWorker {
             .name("jointloc-absolute".into())
             .spawn(move || {
                 while let Ok(r) = req_rx.recv() {
-                    let out = source.localize(&FixRequest {
-                        frame: r.frame,
-                        timestamp: r.timestamp,
-                        image: &r.image,
-                        altitude: r.altitude,
-                        prior: &r.prior,
-                        zoom: r.zoom,
-                        valid: r.valid.as_deref(),
-                    });
+                    let began = std::time::Instant::now();
+                    let rendered = r.mosaic.as_ref().map(MosaicJob::render);
+                    let (image, zoom, valid) = match &rendered {
+                        Some(Some(m)) => (&m.image, m.zoom, Some(m.valid.as_slice())),
+                        _ => (&r.image, r.zoom, r.valid.as_deref()),
+                    };
+                    let out = match rendered {
+                        // The virtual frame covered too little: a failed search.
+                        Some(None) => Ok(Some(Located {
+                            outcome: Outcome::Failed(Failure {
+                                reason: FailureReason::NoPeak(NoPeak::TooSmall { valid_px: 0 }),
+                                searched_tiles: 0,
+                                global: false,
+                                next_radius: search_radius(0.0),
+                                ms: began.elapsed().as_secs_f64() * 1e3,
+                            }),
+                            injected: false,
+                        })),
+                        _ => source.localize(&FixRequest {
+                            frame: r.frame,
+                            timestamp: r.timestamp,
+                            image,
+                            altitude: r.altitude,
+                            prior: &r.prior,
+                            zoom,
+                            valid,
+                        }),
+                    };
                     if res_tx.send((r.frame, out)).is_err() {
                         break;
                     }
@@ -84,7 +107,11 @@ impl AbsoluteWorker {
     }
 
     /// Hands a frame to the thread if it is idle; false (frame skipped) when it is busy.
-    pub(crate) fn try_submit(&mut self, request: &FixRequest<'_>) -> bool {
+    pub(crate) fn try_submit(
+        &mut self,
+        request: &FixRequest<'_>,
+        mosaic: Option<MosaicJob>,
+    ) -> bool {
         if self.busy {
             return false;
         }
@@ -99,6 +126,7 @@ impl AbsoluteWorker {
             prior: *request.prior,
             zoom: request.zoom,
             valid: request.valid.map(<[bool]>::to_vec),
+            mosaic,
         };
         // At most one request is ever outstanding (`busy`), so the slot is free.
         match tx.try_send(request) {

@@ -243,6 +243,16 @@ impl jointloc_system::FixSource for Slow {
     }
 }
 
+/// Frames no faster than one per `.0` (as a camera would give them): the number of searches a
+/// slow source completes does not then depend on how fast this machine tracks.
+struct Paced(std::time::Duration);
+
+impl Observer for Paced {
+    fn frame(&mut self, _: &FusedFrame) {
+        std::thread::sleep(self.0);
+    }
+}
+
 /// On its own thread a fix comes back after its keyframe may have been culled; it is then
 /// tied to the keyframe nearest in time instead of being dropped (at 200 m that dropped the
 /// first fixes and held off the world frame by 22 s).
@@ -253,7 +263,10 @@ fn threaded_fixes_whose_keyframe_was_culled_meanwhile_are_still_used() {
         TruthFixes::new(flight(), 0.1, 7),
         std::time::Duration::from_millis(600),
     );
-    let b = builder(flight(), config.clone(), slow).mode(Mode::Threaded);
+    // 201 frames at most 40 Hz: at least 5 s, 8 searches of 600 ms or more.
+    let b = builder(flight(), config.clone(), slow)
+        .mode(Mode::Threaded)
+        .observer(Box::new(Paced(std::time::Duration::from_millis(25))));
     let (_, outputs) = run(b, &config);
     let s = &outputs.summary;
     assert!(s.fixes_found >= 5, "{s:?}");
