@@ -249,7 +249,7 @@ pub fn correlate(
         })
         .collect();
     let coarse_window = window.halved();
-    let (cs, cw, ch) = scores(&coarse_view, &coarse_valid, &coarse_window);
+    let (cs, cw, _) = scores(&coarse_view, &coarse_valid, &coarse_window);
     let best = argmax(&cs);
     let (bx, by) = (best % cw, best / cw);
     let ex = config.exclusion_px.div_ceil(2);
@@ -259,7 +259,6 @@ pub fn correlate(
         .filter(|(i, _)| (i % cw).abs_diff(bx) > ex || (i / cw).abs_diff(by) > ex)
         .map(|(_, &s)| s)
         .fold(f64::NEG_INFINITY, f64::max);
-    let _ = ch;
     // Full resolution around the coarse peak.
     let (x0, y0) = ((2 * bx).saturating_sub(3), (2 * by).saturating_sub(3));
     let (pw, ph) = (

@@ -472,20 +472,19 @@ impl AbsLocalizer {
             )),
             None => None,
         };
-        let zoomed = altitude * view.zoom;
         if view.zoom > 1.0 {
             return Ok(self.correlate_view(view, coverage.as_ref(), prior, start));
         }
-        self.adapt_map_scale(zoomed)?;
+        self.adapt_map_scale(altitude)?;
         let std = grey_std(frame);
         if std < self.config.min_texture_std {
             tracing::debug!(std, "frame without texture: no fix");
             return Ok(self.fail(FailureReason::Textureless { std }, 0, false, start));
         }
-        let expected = self.expected_scale(zoomed);
-        let virtual_frame = view.zoom != 1.0 || view.valid.is_some();
+        let expected = self.expected_scale(altitude);
+        // A masked frame is a virtual one, an ideal pinhole.
         let ctx = ViewContext {
-            lens: if virtual_frame {
+            lens: if view.valid.is_some() {
                 None
             } else {
                 Lens::of(&self.camera, self.config.accept.max_off_axis_deg)
@@ -634,13 +633,9 @@ impl AbsLocalizer {
             .flatten();
         let angles: Vec<f64> = match prior.heading.or(own_heading) {
             Some(h) => vec![h],
-            None => {
-                let n = cfg.rotation_hypotheses.max(1);
-                (0..n)
-                    .map(|i| i as f64 * std::f64::consts::TAU / n as f64)
-                    .collect()
-            }
+            None => sweep(cfg.rotation_hypotheses.max(1)),
         };
+        let coverage = coverage.map(Coverage::image);
         let expected = self.expected_scale(view.altitude * view.zoom);
         let principal = (self.camera.cx, self.camera.cy);
         let map = self.tiles.map();
@@ -655,7 +650,7 @@ impl AbsLocalizer {
                             radius: i64,
                             best: &mut Option<Placement>| {
             searched += 1;
-            match this.place(view, coverage, angle, expected, centre, radius) {
+            match this.place(view, coverage.as_ref(), angle, expected, centre, radius) {
                 Ok(p) if best.as_ref().is_none_or(|b| p.peak.score > b.peak.score) => {
                     *best = Some(p)
                 }
@@ -763,12 +758,12 @@ impl AbsLocalizer {
     }
 
     /// The best placement of `view` turned by `angle`, its principal point within `radius` map
-    /// pixels of map pixel `(pu, pv)`.
+    /// pixels of map pixel `(pu, pv)`; `coverage`: [`Coverage::image`] of the view's mask.
     #[allow(clippy::too_many_arguments)]
     fn place(
         &self,
         view: &FrameView<'_>,
-        coverage: Option<&Coverage>,
+        coverage: Option<&GrayImage>,
         angle: f64,
         expected: f64,
         (pu, pv): (f64, f64),
@@ -781,9 +776,8 @@ impl AbsLocalizer {
         let (vw, vh) = normalised.image.dimensions();
         let (vw, vh) = (vw as usize, vh as usize);
         let valid: Vec<bool> = match coverage {
-            Some(c) => {
-                let img = c.image();
-                let (vals, inside) = resample(&img, vw, vh, 1, |u, v| {
+            Some(img) => {
+                let (vals, inside) = resample(img, vw, vh, 1, |u, v| {
                     Some(normalised.transform.inverse(u, v))
                 });
                 vals.iter()
@@ -842,10 +836,7 @@ impl AbsLocalizer {
     }
 
     fn sweep_angles(&self) -> Vec<f64> {
-        let n = self.config.rotation_hypotheses;
-        (0..n)
-            .map(|i| i as f64 * std::f64::consts::TAU / n as f64)
-            .collect()
+        sweep(self.config.rotation_hypotheses)
     }
 
     /// Best accepted candidate over `tiles` × `angles` (views are detected once per angle and
@@ -1161,6 +1152,13 @@ impl Coverage {
             }])
         })
     }
+}
+
+/// `n` headings evenly spread over the full turn.
+fn sweep(n: usize) -> Vec<f64> {
+    (0..n)
+        .map(|i| i as f64 * std::f64::consts::TAU / n as f64)
+        .collect()
 }
 
 /// Standard deviation of the grey levels.

@@ -328,33 +328,27 @@ impl JointLoc {
         {
             // A frame too small on the map is searched through a virtual frame: rendered here
             // in the sequential mode, on the thread in the threaded one (only when it is idle).
+            // `Err`: none could be made (not tracked, too few frames kept, too little covered).
             let busy = matches!(&self.absolute, Absolute::Thread(w) if w.is_busy());
             let job = match (self.virtual_frames.zoom(alt), r.pose) {
-                (Some(_), Some(_)) if busy => Some(None),
-                (None, _) => Some(None),
+                (None, _) => Ok(None),
+                (Some(_), Some(_)) if busy => Ok(None),
                 (Some(zoom), Some(pose)) => self
                     .virtual_frames
                     .up(up)
                     .and_then(|up| self.virtual_frames.job(&pose, alt, zoom, scale, up))
-                    .map(Some),
-                (Some(_), None) => None,
+                    .map(Some)
+                    .ok_or(()),
+                (Some(_), None) => Err(()),
             };
-            let Some(mut job) = job else {
+            let view = match (&self.absolute, &job) {
+                (Absolute::Inline(_), Ok(Some(j))) => j.render().map(Some).ok_or(()),
+                (_, Ok(_)) => Ok(None),
+                (_, Err(())) => Err(()),
+            };
+            let (Ok(job), Ok(view)) = (job, view) else {
                 self.timing.skipped_no_view += 1;
                 return self.finish_frame(index, timestamp, altitude, r, absolute, start);
-            };
-            let view = match (&self.absolute, job.take()) {
-                (Absolute::Inline(_), Some(j)) => match j.render() {
-                    Some(m) => Some(m),
-                    None => {
-                        self.timing.skipped_no_view += 1;
-                        return self.finish_frame(index, timestamp, altitude, r, absolute, start);
-                    }
-                },
-                (_, j) => {
-                    job = j;
-                    None
-                }
             };
             if view.is_some() {
                 self.timing.virtual_frames += 1;
