@@ -29,13 +29,11 @@ pub struct TerrainShift {
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct TerrainConfig {
-    /// Share of each new estimate taken into the correction; 0 (the default): off. The map
-    /// points are also held on the model by the local BA's ground factors, which take up part
-    /// of a shift before it is measured, so one estimate sees only about a third of the bias;
-    /// the correction converges over successive fixes. When on, 0.3 measured better than 0.6
-    /// on mountain medium (`docs/jointloc.md` §"Terrain correction"). Off by default since
-    /// fresh flights showed no gain: a tie under a 45° change of sun, worse on maps taken in
-    /// the flight's light, and 2–4× worse at the end with a 133° fisheye (§"Off by default").
+    /// Share of each new estimate taken into the correction (0: off). The map points are
+    /// also held on the model by the local BA's ground factors, which take up part of a shift
+    /// before it is measured, so one estimate sees only about a third of the bias; the
+    /// correction converges over successive fixes. 0.3 measured better than 0.6 on
+    /// mountain medium (`docs/jointloc.md` §"Terrain correction").
     pub gain: f64,
     /// σ of a map point's height against the model, metres.
     pub sigma_m: f64,
@@ -61,7 +59,7 @@ pub struct TerrainConfig {
 impl Default for TerrainConfig {
     fn default() -> Self {
         Self {
-            gain: 0.0,
+            gain: 0.3,
             sigma_m: 0.1,
             huber: 1.0,
             tau_m: 0.03,
@@ -252,7 +250,8 @@ mod tests {
         let g = ground(relief);
         for seed in 0..5 {
             let truth = Vector3::new(-0.08 + 0.03 * seed as f64, 0.06, 0.02);
-            let e = estimate_shift(&points(&g, truth, seed), &g, &on()).unwrap();
+            let e =
+                estimate_shift(&points(&g, truth, seed), &g, &TerrainConfig::default()).unwrap();
             // Horizontal to 1 cm; the rocks lift the height a little (Huber, not a redescender).
             assert!(
                 (e.shift - truth).xy().norm() < 0.01,
@@ -269,39 +268,22 @@ mod tests {
         }
     }
 
-    /// The correction as a user turns it on (off by default).
-    fn on() -> TerrainConfig {
-        TerrainConfig {
-            gain: 0.3,
-            ..TerrainConfig::default()
-        }
-    }
-
-    #[test]
-    fn off_by_default() {
-        let g = ground(relief);
-        let e = estimate_shift(&points(&g, Vector3::new(0.1, 0.0, 0.0), 3), &g, &on()).unwrap();
-        let mut c = TerrainCorrection::default();
-        c.update(&e, &TerrainConfig::default());
-        assert_eq!(c.offset, Vector2::zeros());
-    }
-
     #[test]
     fn flat_ground_shows_no_horizontal_shift_and_moves_no_correction() {
         let g = ground(|_, _| 2.0);
         let truth = Vector3::new(0.3, -0.2, 0.05);
-        let e = estimate_shift(&points(&g, truth, 7), &g, &on()).unwrap();
+        let e = estimate_shift(&points(&g, truth, 7), &g, &TerrainConfig::default()).unwrap();
         assert!((e.shift.z - 0.05).abs() < 0.01, "{:?}", e.shift);
         assert!(e.shift.xy().norm() < 1e-6, "{:?}", e.shift);
         let mut c = TerrainCorrection::default();
-        c.update(&e, &on());
+        c.update(&e, &TerrainConfig::default());
         assert!(c.offset.norm() < 1e-6, "{:?}", c.offset);
     }
 
     #[test]
     fn the_correction_converges_to_the_bias_and_is_clamped() {
         let g = ground(relief);
-        let config = on();
+        let config = TerrainConfig::default();
         // The map sits where the biased fixes put it, moved by the correction so far.
         let bias = Vector2::new(0.09, -0.07);
         let mut c = TerrainCorrection::default();
@@ -330,7 +312,7 @@ mod tests {
 
     #[test]
     fn no_model_or_too_few_points_give_nothing() {
-        let config = on();
+        let config = TerrainConfig::default();
         let p = vec![Point3::new(0.0, 0.0, 0.0); 100];
         assert!(estimate_shift(&p, &Ground::default(), &config).is_none());
         let g = ground(relief);
