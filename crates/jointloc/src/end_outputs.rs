@@ -151,7 +151,7 @@ impl JointLoc {
             .then(|| ElevationGround(self.altitude.ground().clone()));
         crate::final_ba::refine(
             self.slam.map(),
-            self.slam.ideal_camera(),
+            self.slam.undistorter(),
             &self.config.slam.local_mapping.ba,
             &self.config.final_ba,
             &mut |t| aligner.sim_at(t),

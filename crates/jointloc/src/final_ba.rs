@@ -17,11 +17,12 @@
 
 use std::collections::BTreeMap;
 
-use jointloc_geometry::{CameraToWorld, PinholeCamera, Sim3};
+use jointloc_geometry::{CameraToWorld, Sim3};
 use jointloc_slam::ba::{
     BaProblem, GlobalPositionFactor, GroundHeightFactor, Observation, TwoStageConfig,
     bundle_adjust_two_stage,
 };
+use jointloc_slam::frame::Undistorter;
 use jointloc_slam::local_mapping::lba::ground_factor_sigma;
 use jointloc_slam::local_mapping::{GroundModel, LocalBaConfig};
 use jointloc_slam::map::{KeyFrameId, Map};
@@ -41,6 +42,12 @@ pub struct FinalBaConfig {
     pub first_iterations: usize,
     /// Iterations after the observations it flags are left out.
     pub second_iterations: usize,
+    /// Each keypoint's σ grows by how much the rectification stretches it
+    /// ([`Undistorter::noise_stretch`]): a wide lens' peripheral keypoints, measured in the
+    /// distorted image, are placed far less precisely in the tracker's pixels than the
+    /// octave's σ says. No effect without a lens model; with a 133° fisheye the end output
+    /// gained on four of five flights (`docs/camera.md` §"2026-12-05").
+    pub lens_noise: bool,
 }
 
 impl Default for FinalBaConfig {
@@ -49,6 +56,7 @@ impl Default for FinalBaConfig {
             enabled: true,
             first_iterations: 10,
             second_iterations: 20,
+            lens_noise: true,
         }
     }
 }
@@ -99,7 +107,7 @@ pub struct RefinedKeyFrames {
 #[allow(clippy::too_many_arguments)]
 pub fn refine(
     map: &Map,
-    camera: &PinholeCamera,
+    lens: &Undistorter,
     lba: &LocalBaConfig,
     config: &FinalBaConfig,
     sim_at: &mut dyn FnMut(f64) -> Sim3,
@@ -112,7 +120,7 @@ pub fn refine(
     if keyframes.len() < 2 {
         return Ok(None);
     }
-    let mut problem = BaProblem::new(*camera);
+    let mut problem = BaProblem::new(lens.ideal);
     let mut index: BTreeMap<KeyFrameId, (usize, Sim3)> = BTreeMap::new();
     let mut slam_poses = Vec::with_capacity(keyframes.len());
     for kf in &keyframes {
@@ -186,13 +194,12 @@ pub fn refine(
                 .expect("indexed keyframes exist")
                 .features
                 .keypoints[i];
-            problem.observations.push(Observation::at_level(
-                ci,
-                pi,
-                Point2::new(kp.x, kp.y),
-                kp.octave,
-                sf,
-            ));
+            let mut observation =
+                Observation::at_level(ci, pi, Point2::new(kp.x, kp.y), kp.octave, sf);
+            if config.lens_noise {
+                observation.information /= lens.noise_stretch(&observation.pixel).powi(2);
+            }
+            problem.observations.push(observation);
         }
     }
     stats.points = problem.points.len();
@@ -294,6 +301,7 @@ mod tests {
     use super::*;
     use jointloc_features::orb::matcher::FeatureGrid;
     use jointloc_features::orb::{KeyPoint, OrbFeatures};
+    use jointloc_geometry::PinholeCamera;
     use jointloc_slam::map::KeyFrame;
     use nalgebra::Vector3;
     use rand::{Rng, SeedableRng};
@@ -465,7 +473,7 @@ mod tests {
             let sc = scene(seed);
             let refined = refine(
                 &sc.map,
-                &sc.camera,
+                &Undistorter::new(&sc.camera, 70.0),
                 &LocalBaConfig::default(),
                 &FinalBaConfig::default(),
                 &mut windowed,

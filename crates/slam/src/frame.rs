@@ -11,7 +11,7 @@
 
 use jointloc_features::orb::{FeatureGrid, GrayImageView, OrbFeatures};
 use jointloc_geometry::{PinholeCamera, WorldToCamera};
-use nalgebra::{Point2, Point3, Vector3};
+use nalgebra::{Matrix2, Point2, Point3, Vector3};
 
 use crate::map::{KeyFrameId, MapPointId};
 
@@ -70,6 +70,38 @@ impl Undistorter {
             camera: *camera,
             ideal,
             max_tan: max.tan(),
+        }
+    }
+
+    /// How much a keypoint's pixel noise grows on its way into the tracker's pixels at
+    /// tracker pixel `uv`: the largest singular value of ∂(tracker px)/∂(image px). 1 without
+    /// a lens model; for a 133° Kannala–Brandt fisheye `≈ 1/cos²θ` radially, 8.5 at 70° off
+    /// axis, where the octave's σ alone over-states how well a peripheral keypoint is placed.
+    pub fn noise_stretch(&self, uv: &Point2<f64>) -> f64 {
+        if !self.camera.has_distortion() {
+            return 1.0;
+        }
+        let (fx, fy) = (self.ideal.fx, self.ideal.fy);
+        let ray = Point3::new(
+            (uv.x - self.ideal.cx) / fx,
+            (uv.y - self.ideal.cy) / fy,
+            1.0,
+        );
+        let Some((_, j)) = self.camera.project_with_jacobian(&ray) else {
+            return 1.0;
+        };
+        // ∂(image px)/∂(tracker px) at depth 1: the projection's x, y columns over f.
+        let m = Matrix2::new(
+            j[(0, 0)] / fx,
+            j[(0, 1)] / fy,
+            j[(1, 0)] / fx,
+            j[(1, 1)] / fy,
+        );
+        let smallest = m.singular_values().min();
+        if smallest.is_finite() && smallest > 0.0 {
+            1.0 / smallest
+        } else {
+            1.0
         }
     }
 
@@ -265,5 +297,35 @@ mod tests {
         let all: Vec<u8> = (0..256 * 4).map(|i| (i % 256) as u8).collect();
         let view = GrayImageView::new(32, 32, &all).unwrap();
         assert!((image_entropy(&view) - 8.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn noise_stretch_follows_the_lens() {
+        use jointloc_geometry::KannalaBrandt;
+        let pin = Undistorter::new(&PinholeCamera::ideal(500.0, 500, 500), 70.0);
+        assert_eq!(pin.noise_stretch(&Point2::new(3.0, 480.0)), 1.0);
+        // A pure equidistant fisheye (θ_d = θ): radially ∂(f tanθ)/∂(f θ) = 1/cos²θ, the
+        // largest of the two stretches (tangentially tanθ/θ).
+        let fish = PinholeCamera::fisheye(133.0, 500, 500, KannalaBrandt::default()).unwrap();
+        let u = Undistorter::new(&fish, 70.0);
+        let at = |deg: f64, azimuth: f64| {
+            let r = u.ideal.fx * deg.to_radians().tan();
+            let p = Point2::new(
+                u.ideal.cx + r * azimuth.cos(),
+                u.ideal.cy + r * azimuth.sin(),
+            );
+            u.noise_stretch(&p)
+        };
+        assert!((at(0.0, 0.0) - 1.0).abs() < 1e-9);
+        for deg in [20.0f64, 45.0, 70.0] {
+            let expected = 1.0 / deg.to_radians().cos().powi(2);
+            for azimuth in [0.0, 0.7, 2.0] {
+                let s = at(deg, azimuth);
+                assert!(
+                    (s - expected).abs() < 1e-6 * expected,
+                    "{deg}° {azimuth}: {s}"
+                );
+            }
+        }
     }
 }

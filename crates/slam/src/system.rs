@@ -212,6 +212,11 @@ impl System {
         &self.undistorter.ideal
     }
 
+    /// The rectification from the camera's pixels to [`Self::ideal_camera`]'s.
+    pub fn undistorter(&self) -> &Undistorter {
+        &self.undistorter
+    }
+
     pub fn map(&self) -> &Map {
         &self.map
     }
