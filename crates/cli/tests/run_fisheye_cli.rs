@@ -6,7 +6,7 @@
 
 mod common;
 
-use common::{jointloc, s, summary};
+use common::{jointloc, run_orb_on, s};
 
 #[test]
 fn a_fisheye_flight_localises_as_well_as_the_pinhole_one() {
@@ -36,23 +36,7 @@ fn a_fisheye_flight_localises_as_well_as_the_pinhole_one() {
             String::from_utf8_lossy(&sim.stderr)
         );
         let out = tmp.path().join(format!("{name}-out"));
-        let run = jointloc(&[
-            "run",
-            "--dataset",
-            s(&data),
-            "--out",
-            s(&out),
-            "--matcher",
-            "orb",
-            "--sequential",
-        ]);
-        let stdout = String::from_utf8_lossy(&run.stdout).into_owned();
-        assert!(
-            run.status.success(),
-            "{name}: {stdout}\n{}",
-            String::from_utf8_lossy(&run.stderr)
-        );
-        let summary = summary(&out);
+        let (stdout, summary) = run_orb_on(&data, &out, &["--sequential"]);
         let (frames, world) = (
             summary["frames"].as_u64().unwrap(),
             summary["world_poses"].as_u64().unwrap(),

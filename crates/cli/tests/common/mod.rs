@@ -141,11 +141,16 @@ pub fn base(seed: &str) -> &'static Base {
 /// A `jointloc run` on the seed's dataset into `out` with the ORB matcher and `extra`
 /// arguments; asserts success and returns its stdout and summary.
 pub fn run_orb(seed: &str, out: &Path, extra: &[&str]) -> (String, serde_json::Value) {
-    let data = dataset(seed);
+    run_orb_on(&dataset(seed), out, extra)
+}
+
+/// A `jointloc run` on the dataset `data` into `out` with the ORB matcher and `extra`
+/// arguments; asserts success and returns its stdout and summary.
+pub fn run_orb_on(data: &Path, out: &Path, extra: &[&str]) -> (String, serde_json::Value) {
     let mut args = vec![
         "run",
         "--dataset",
-        s(&data),
+        s(data),
         "--out",
         s(out),
         "--matcher",
@@ -156,7 +161,7 @@ pub fn run_orb(seed: &str, out: &Path, extra: &[&str]) -> (String, serde_json::V
     let stdout = String::from_utf8_lossy(&run.stdout).into_owned();
     assert!(
         run.status.success(),
-        "seed {seed}: {args:?}\n{stdout}\n{}",
+        "{args:?}\n{stdout}\n{}",
         String::from_utf8_lossy(&run.stderr)
     );
     (stdout, summary(out))
