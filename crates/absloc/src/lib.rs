@@ -9,6 +9,7 @@
 //! - [`candidate`]: one view against one tile (match, homography, checks);
 //! - [`ssim`], [`confidence`]: the confidence and the area prediction;
 //! - [`localizer`], [`search`]: the coarse-to-fine search ([`AbsLocalizer`]);
+//! - [`shortlist`]: VLAD ranking of the pairs of a whole-map search;
 //! - [`mosaic`]: a virtual frame wider than one frame, from recent frames and their poses;
 //! - [`registry`]: matchers by name (`xfeat-lighterglue`, `orb`, ...);
 //! - [`orb`]: ORB behind the same traits (binary descriptors as 0/1 floats);
@@ -27,6 +28,7 @@ pub mod orb;
 pub mod pipeline;
 pub mod registry;
 pub mod search;
+pub mod shortlist;
 pub mod ssim;
 pub mod tiles;
 pub mod warp;

@@ -8,6 +8,7 @@
 //! `rotation_hypotheses` angles): learned matchers are neither scale- nor rotation-invariant.
 
 use std::path::PathBuf;
+use std::sync::OnceLock;
 use std::time::Instant;
 
 use image::GrayImage;
@@ -23,6 +24,7 @@ use crate::correlate::{CorrelationConfig, Grid, NoPeak, correlate};
 use crate::error::{AbslocError, Result};
 use crate::pipeline::FeaturePipeline;
 use crate::search::{self, SearchInput};
+use crate::shortlist::{ShortlistConfig, TileIndex};
 use crate::ssim::{SsimConfig, ssim_masked};
 use crate::tiles::MapTiles;
 use crate::warp::{Lens, normalise_lens, resample, warp_into_map_lens};
@@ -84,6 +86,8 @@ pub struct AbsLocConfig {
     pub ssim: SsimConfig,
     /// Registration of virtual frames (mosaics) by correlation.
     pub correlation: CorrelationConfig,
+    /// The shortlist of a whole-map search (VLAD ranking of view × tile pairs).
+    pub shortlist: ShortlistConfig,
 }
 
 impl Default for AbsLocConfig {
@@ -107,6 +111,7 @@ impl Default for AbsLocConfig {
             homography: HomographyConfig::default(),
             ssim: SsimConfig::default(),
             correlation: CorrelationConfig::default(),
+            shortlist: ShortlistConfig::default(),
         }
     }
 }
@@ -308,6 +313,9 @@ pub struct AbsLocalizer {
     /// Map upsampling chosen at the first frame (1: none), see
     /// [`AbsLocConfig::min_match_scale`].
     upsample: Option<f64>,
+    /// Vocabulary and the words of the tile keypoints, built at the first whole-map search
+    /// that needs them.
+    shortlist: OnceLock<Option<TileIndex>>,
 }
 
 impl AbsLocalizer {
@@ -341,6 +349,7 @@ impl AbsLocalizer {
                 ..Default::default()
             },
             upsample: None,
+            shortlist: OnceLock::new(),
         })
     }
 
@@ -372,6 +381,7 @@ impl AbsLocalizer {
         self.tile_features = loaded.features;
         self.cache_status = loaded.status;
         self.upsample = Some(factor);
+        self.shortlist = OnceLock::new();
         self.reset();
         Ok(())
     }
@@ -554,7 +564,7 @@ impl AbsLocalizer {
                 &first_angles,
                 scale,
                 expected,
-                true,
+                local.is_none(),
                 &mut views,
                 &mut searched,
                 &mut best_rejection,
@@ -563,6 +573,10 @@ impl AbsLocalizer {
                 break;
             }
         }
+        // Whether `found` comes from a search the shortlist cut short.
+        let keep = self.config.shortlist.candidates;
+        let cut = |angles: usize| keep > 0 && all.len() * angles > keep;
+        let mut shortlisted = local.is_none() && cut(first_angles.len());
         let mut global = local_is_all;
         // Retry everywhere, with the rotation sweep unless the caller fixed the heading; not
         // when that is exactly what was just searched.
@@ -591,7 +605,19 @@ impl AbsLocalizer {
                 &mut best_rejection,
             )?;
             global = true;
+            shortlisted = cut(angles.len());
         }
+        let found = match found {
+            Some(best) if shortlisted => Some(self.refine(
+                frame,
+                (&ctx, scale, expected),
+                best,
+                &all,
+                &mut views,
+                &mut searched,
+            )?),
+            other => other,
+        };
         let Some(best) = found else {
             return Ok(self.fail(
                 FailureReason::NoMatch {
@@ -835,12 +861,57 @@ impl AbsLocalizer {
         })
     }
 
+    /// After a shortlisted whole-map search: the best pair's view matched against the other
+    /// tiles that contain its fix, as a local search would, since the shortlist's first
+    /// decisive tile may hold the frame near its edge. The most inliers win.
+    fn refine(
+        &self,
+        frame: &GrayImage,
+        (ctx, scale, expected): (&ViewContext<'_>, f64, f64),
+        best: Candidate,
+        all: &[usize],
+        views: &mut Vec<(f64, QueryView)>,
+        searched: &mut usize,
+    ) -> Result<Candidate> {
+        let c =
+            best.h_map_from_frame * Point2::new(self.camera.cx, self.camera.cy).to_homogeneous();
+        let (x, y) = self.tiles.pixel_to_world(c.x / c.z, c.y / c.z);
+        let others: Vec<usize> = self
+            .tiles
+            .containing(all, x, y)
+            .into_iter()
+            .filter(|&t| t != best.tile)
+            .collect();
+        if others.is_empty() {
+            return Ok(best);
+        }
+        let angle = views[best.view].0;
+        let mut rejection = None;
+        let refined = self.search(
+            frame,
+            ctx,
+            &others,
+            &[angle],
+            scale,
+            expected,
+            false,
+            views,
+            searched,
+            &mut rejection,
+        )?;
+        Ok(match refined {
+            Some(r) if r.inliers.len() > best.inliers.len() => r,
+            _ => best,
+        })
+    }
+
     fn sweep_angles(&self) -> Vec<f64> {
         sweep(self.config.rotation_hypotheses)
     }
 
     /// Best accepted candidate over `tiles` × `angles` (views are detected once per angle and
-    /// kept in `views` for reuse by a later pass); `early` allows the early stop.
+    /// kept in `views` for reuse by a later pass), with the early stop. `rank`: a search with
+    /// no prior position, whose pairs are shortlisted by [`crate::shortlist`].
     #[allow(clippy::too_many_arguments)]
     fn search(
         &self,
@@ -850,7 +921,7 @@ impl AbsLocalizer {
         angles: &[f64],
         scale: f64,
         expected: f64,
-        early: bool,
+        rank: bool,
         views: &mut Vec<(f64, QueryView)>,
         searched: &mut usize,
         best_rejection: &mut Option<Rejection>,
@@ -899,19 +970,51 @@ impl AbsLocalizer {
                 expected_scale: Some(expected),
             },
             parallel: self.config.parallel,
-            early_stop_inliers: if early {
-                self.config.early_stop_inliers
-            } else {
-                None
-            },
+            early_stop_inliers: self.config.early_stop_inliers,
         };
         // Nearest tiles first, every angle of a tile before the next tile.
-        let jobs: Vec<(usize, usize)> = tiles
+        let mut jobs: Vec<(usize, usize)> = tiles
             .iter()
             .flat_map(|&t| view_ids.iter().map(move |&v| (v, t)))
             .collect();
         let view_refs: Vec<&QueryView> = views.iter().map(|(_, v)| v).collect();
+        let keep = self.config.shortlist.candidates;
+        if rank && keep > 0 && jobs.len() > keep {
+            let t = Instant::now();
+            let index = self
+                .shortlist
+                .get_or_init(|| TileIndex::build(&self.tile_features, &self.config.shortlist));
+            if let Some(index) = index {
+                let vlads: Vec<(usize, Vec<f32>)> = view_ids
+                    .iter()
+                    .map(|&v| (v, index.vlad(&view_refs[v].features)))
+                    .collect();
+                // The footprint's window: the smallest of the views' images (the unrotated
+                // one, when the sweep has it).
+                let window = view_ids
+                    .iter()
+                    .map(|&v| {
+                        let im = &view_refs[v].normalised.image;
+                        (im.width() as f32, im.height() as f32)
+                    })
+                    .min_by(|a, b| (a.0 * a.1).total_cmp(&(b.0 * b.1)))
+                    .unwrap_or((1.0, 1.0));
+                let pairs = jobs.len();
+                jobs = index.rank(&self.tile_features, &vlads, window, tiles, keep);
+                tracing::debug!(
+                    pairs,
+                    kept = jobs.len(),
+                    ms = t.elapsed().as_secs_f64() * 1e3,
+                    "whole-map search shortlisted"
+                );
+            }
+        }
         let result = search::run(&input, &view_refs, &jobs)?;
+        if rank && let Some(b) = &result.best {
+            // Where the ranking had the pair that won (how deep the shortlist must reach).
+            let at = jobs.iter().position(|&j| j == (b.view, b.tile));
+            tracing::debug!(rank = ?at, inliers = b.inliers.len(), "whole-map search: best pair");
+        }
         *searched += result.evaluated;
         if let Some(r) = result.best_rejection
             && result.best.is_none()

@@ -6,7 +6,7 @@ mod common;
 
 use common::{sim_dataset, sim_dataset_medium};
 use jointloc_absloc::registry::{RegistryOptions, resolve};
-use jointloc_absloc::{AbsLocConfig, AbsLocalizer, MapTiles, Prior};
+use jointloc_absloc::{AbsLocConfig, AbsLocalizer, Fix, MapTiles, Prior};
 use jointloc_formats::{MapInfo, UavDataset};
 
 #[test]
@@ -46,14 +46,8 @@ fn georeference_agrees_with_the_ground_truth() {
     }
 }
 
-/// Localises every frame of the easy dataset with `matcher`; returns the 2-D errors.
-fn run(matcher: &str) -> Vec<f64> {
-    run_on(sim_dataset(), matcher, 1.0)
-}
-
-/// Localises every frame of `dir` with `matcher`, checking the map upsampling chosen; returns
-/// the 2-D errors.
-fn run_on(dir: &std::path::Path, matcher: &str, upsample: f64) -> Vec<f64> {
+/// The matching pipeline `matcher` (weights from the model store unless it is ORB).
+fn pipeline(matcher: &str) -> jointloc_absloc::FeaturePipeline {
     let opts = RegistryOptions {
         models_dir: (matcher != "orb").then(|| {
             jointloc_features::models::ready_store()
@@ -63,7 +57,29 @@ fn run_on(dir: &std::path::Path, matcher: &str, upsample: f64) -> Vec<f64> {
         }),
         ..Default::default()
     };
-    let pipeline = resolve(matcher, &opts).unwrap();
+    resolve(matcher, &opts).unwrap()
+}
+
+/// Localises frame `f` with no prior; panics, naming `what` and the frame, without a fix.
+fn localise(loc: &mut AbsLocalizer, f: &jointloc_formats::SequenceFrame, what: &str) -> Fix {
+    let img = image::open(&f.path).unwrap().into_luma8();
+    let out = loc
+        .localize(&img, f.altitude.unwrap(), &Prior::default())
+        .unwrap();
+    out.fix()
+        .unwrap_or_else(|| panic!("{what}: {}: {out:?}", f.path.display()))
+        .clone()
+}
+
+/// Localises every frame of the easy dataset with `matcher`; returns the 2-D errors.
+fn run(matcher: &str) -> Vec<f64> {
+    run_on(sim_dataset(), matcher, 1.0)
+}
+
+/// Localises every frame of `dir` with `matcher`, checking the map upsampling chosen; returns
+/// the 2-D errors.
+fn run_on(dir: &std::path::Path, matcher: &str, upsample: f64) -> Vec<f64> {
+    let pipeline = pipeline(matcher);
     let ds = UavDataset::open(dir).unwrap();
     let tiles = MapTiles::open(dir).unwrap();
     assert!(tiles.has_elevation());
@@ -77,13 +93,7 @@ fn run_on(dir: &std::path::Path, matcher: &str, upsample: f64) -> Vec<f64> {
         .frames
         .iter()
         .map(|f| {
-            let img = image::open(&f.path).unwrap().into_luma8();
-            let out = loc
-                .localize(&img, f.altitude.unwrap(), &Prior::default())
-                .unwrap();
-            let fix = out
-                .fix()
-                .unwrap_or_else(|| panic!("{matcher}: {}: {out:?}", f.path.display()));
+            let fix = localise(&mut loc, f, matcher);
             let c = f.ground_truth.unwrap().centre();
             // z = the map's elevation model under the fix + the altimeter: within the
             // altimeter's and the DEM's noise of the truth, on any terrain height.
@@ -127,4 +137,55 @@ fn xfeat_lighterglue_localises_every_frame_on_a_coarse_map() {
         "xfeat-lighterglue (medium)",
         &run_on(sim_dataset_medium(), "xfeat-lighterglue", 2.5),
     );
+}
+
+/// Whole-map searches with the rotation sweep on rendered frames and real weights: with a
+/// shortlist of 8 (rotation, tile) pairs ranked by VLAD, each frame is found where the
+/// exhaustive search finds it, from fewer pairs.
+#[test]
+fn a_shortlisted_whole_map_search_finds_the_exhaustive_fixes() {
+    let dir = sim_dataset();
+    let ds = UavDataset::open(dir).unwrap();
+    let cache_dir = tempfile::tempdir().unwrap();
+    let mut searched = Vec::new();
+    let mut positions = Vec::new();
+    for candidates in [0, 8] {
+        let mut config = AbsLocConfig {
+            cache_dir: Some(cache_dir.path().to_path_buf()),
+            area_prediction: false,
+            use_last_heading: false,
+            ..Default::default()
+        };
+        config.shortlist.candidates = candidates;
+        let tiles = MapTiles::open(dir).unwrap();
+        let pairs = tiles.len() * config.rotation_hypotheses;
+        assert!(pairs > 8, "{pairs} pairs: the shortlist would not cut");
+        let pipeline = pipeline("xfeat-lighterglue");
+        let mut loc = AbsLocalizer::new(tiles, ds.camera, pipeline, config).unwrap();
+        let mut n = 0;
+        let mut at = Vec::new();
+        for f in ds.frames.iter().step_by(4) {
+            let fix = localise(&mut loc, f, &format!("shortlist {candidates}"));
+            assert!(fix.global);
+            let c = f.ground_truth.unwrap().centre();
+            let err = ((fix.position[0] - c.x).powi(2) + (fix.position[1] - c.y).powi(2)).sqrt();
+            assert!(err < 0.3, "{candidates}: {}: {err} m", f.path.display());
+            if candidates > 0 {
+                assert!(
+                    fix.searched_tiles <= candidates + 3,
+                    "{}",
+                    fix.searched_tiles
+                );
+            }
+            n += fix.searched_tiles;
+            at.push([fix.position[0], fix.position[1]]);
+        }
+        searched.push(n);
+        positions.push(at);
+    }
+    assert!(searched[1] < searched[0], "pairs matched: {searched:?}");
+    for (a, b) in positions[0].iter().zip(&positions[1]) {
+        let d = ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2)).sqrt();
+        assert!(d < 0.1, "exhaustive {a:?} vs shortlist {b:?}");
+    }
 }

@@ -55,9 +55,11 @@ fn fixes_follow_a_turning_path_on_several_maps() {
                 jointloc_absloc::search_radius(fix.confidence)
             );
             if k == 0 {
-                // No prior: whole map, rotation sweep.
+                // No prior: whole map, rotation sweep, the shortlist's pairs (and the
+                // refinement's at most 3 more).
                 assert!(fix.global);
-                assert!(fix.searched_tiles > 8);
+                let keep = AbsLocConfig::default().shortlist.candidates;
+                assert!(fix.searched_tiles <= keep + 3, "{}", fix.searched_tiles);
             } else {
                 assert!(!fix.global, "seed {seed} frame {k}: local search expected");
                 searched_after_first.push(fix.searched_tiles);
@@ -217,6 +219,42 @@ fn inner_tiles_first_gives_the_exhaustive_fix_from_fewer_tiles() {
             "seed {seed}: {} vs {}",
             all.searched_tiles,
             inner.searched_tiles
+        );
+    }
+}
+
+#[test]
+fn a_shortlisted_whole_map_search_finds_the_exhaustive_fix_from_fewer_pairs() {
+    // 7 × 7 tiles × 8 rotations = 392 pairs; no prior, so both search the whole map.
+    for seed in [21, 22, 23] {
+        let mut fixes = Vec::new();
+        for candidates in [0, 48] {
+            let mut config = AbsLocConfig::default();
+            config.shortlist.candidates = candidates;
+            let mut loc = localizer(seed, 2000, config);
+            let k = (seed - 20) as f64;
+            let (u, v) = (1150.0 + 160.0 * k, 1250.0 + 95.0 * k);
+            let heading = -2.0 + 0.9 * k;
+            let (x, y) = loc.tiles().pixel_to_world(u, v);
+            let out = loc
+                .localize(&frame(&loc, u, v, heading), ALT, &Prior::default())
+                .unwrap();
+            let fix = out
+                .fix()
+                .unwrap_or_else(|| panic!("seed {seed}, {candidates}: {out:?}"))
+                .clone();
+            let err = ((fix.position[0] - x).powi(2) + (fix.position[1] - y).powi(2)).sqrt();
+            assert!(err < 0.15, "seed {seed}, {candidates}: {err} m");
+            assert!(fix.global);
+            fixes.push(fix);
+        }
+        let (all, short) = (&fixes[0], &fixes[1]);
+        assert!(short.searched_tiles <= 48 + 3, "{}", short.searched_tiles);
+        assert!(
+            all.searched_tiles > 2 * short.searched_tiles,
+            "seed {seed}: exhaustive {} vs shortlist {}",
+            all.searched_tiles,
+            short.searched_tiles
         );
     }
 }
