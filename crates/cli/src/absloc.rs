@@ -28,9 +28,14 @@ pub struct Args {
     /// Search the whole map for every fix (the paper's "w/o" ablation).
     #[arg(long)]
     no_area_prediction: bool,
-    /// Match every candidate tile (no early stop on a decisive tile), as the paper does.
+    /// Match every candidate tile (no early stop on a decisive tile, no shortlist), as the
+    /// paper does.
     #[arg(long)]
     exhaustive: bool,
+    /// A whole-map search matches every (rotation, tile) pair, nearest first, instead of the
+    /// VLAD shortlist's best `[shortlist] candidates`.
+    #[arg(long)]
+    no_shortlist: bool,
     /// Confidence: adaptive, ssim, matching or fixed:V.
     #[arg(long, value_name = "MODE")]
     confidence: Option<ConfidenceMode>,
@@ -95,6 +100,9 @@ fn config_of(args: &Args) -> anyhow::Result<AbsLocConfig> {
     }
     if args.exhaustive {
         cfg.early_stop_inliers = None;
+    }
+    if args.exhaustive || args.no_shortlist {
+        cfg.shortlist.candidates = 0;
     }
     if let Some(c) = args.confidence {
         cfg.confidence = c;

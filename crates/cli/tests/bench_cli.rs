@@ -197,6 +197,18 @@ fn envelope_table_flies_the_hirise_class_preset() {
         row["commands"][1].as_str().unwrap().contains("--start"),
         "{row}"
     );
+    // At 30 m a frame spans 120 map pixels: single frames, so the search with no prior is
+    // timed too.
+    assert!(
+        row["commands"][2]
+            .as_str()
+            .unwrap()
+            .contains("--no-area-prediction"),
+        "{row}"
+    );
+    assert!(row["whole_map_s"].as_f64().unwrap() > 0.0, "{row}");
+    let whole_right = row["whole_map_right"].as_f64().unwrap();
+    assert!((0.0..=1.0).contains(&whole_right), "{row}");
 }
 
 #[test]

@@ -89,29 +89,8 @@ pub(super) fn ablations(
     ];
     for (label, extra) in area.into_iter().filter(|_| plan.wants("area")) {
         let tag = if extra.is_empty() { "area" } else { "noarea" };
-        let fixes = out
-            .join("runs")
-            .join(format!("{}-absloc-{tag}.txt", d.name()));
-        let json = out
-            .join("runs")
-            .join(format!("{}-absloc-{tag}.json", d.name()));
-        let mut a: Vec<String> = args![
-            "absloc",
-            "--dataset",
-            d.path.display(),
-            "--matcher",
-            plan.matcher,
-            "--every",
-            10,
-            "--out",
-            fixes.display(),
-            "--json",
-            json.display(),
-            "--force"
-        ]
-        .to_vec();
-        a.extend(extra);
-        let done = runner.run(&format!("absloc-{}-{tag}", d.name()), &a)?;
+        let extra: Vec<String> = args!["--every", 10].into_iter().chain(extra).collect();
+        let (done, fixes, json) = absloc_run(d, out, runner, &plan.matcher, tag, &extra)?;
         let (mut row, _) = loc_row(
             d,
             label.to_string(),
@@ -135,4 +114,39 @@ pub(super) fn ablations(
         rep.area_prediction.push(row);
     }
     Ok(())
+}
+
+/// One `jointloc absloc` run on `d` with `extra` arguments, its fixes and JSON summary in
+/// `runs/<dataset>-absloc-<tag>.{txt,json}`; returns the run and those two paths.
+pub(super) fn absloc_run(
+    d: &Dataset,
+    out: &Path,
+    runner: &mut Runner,
+    matcher: &str,
+    tag: &str,
+    extra: &[String],
+) -> anyhow::Result<(
+    super::exec::Finished,
+    std::path::PathBuf,
+    std::path::PathBuf,
+)> {
+    let runs = out.join("runs");
+    let fixes = runs.join(format!("{}-absloc-{tag}.txt", d.name()));
+    let json = runs.join(format!("{}-absloc-{tag}.json", d.name()));
+    let mut a: Vec<String> = args![
+        "absloc",
+        "--dataset",
+        d.path.display(),
+        "--matcher",
+        matcher,
+        "--out",
+        fixes.display(),
+        "--json",
+        json.display(),
+        "--force"
+    ]
+    .to_vec();
+    a.extend_from_slice(extra);
+    let done = runner.run(&format!("absloc-{}-{tag}", d.name()), &a)?;
+    Ok((done, fixes, json))
 }

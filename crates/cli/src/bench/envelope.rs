@@ -3,7 +3,9 @@
 //! between the map and the flight. One `jointloc run --sequential --start X,Y` per flight (the
 //! take-off is given: the search without a prior is another question) and what a user of a
 //! Mars helicopter asks of it: how much of the flight is in the map's frame, how many fixes
-//! are right, the error online and at the end, the rate.
+//! are right, the error online and at the end, the rate. Where single frames are matched (not
+//! virtual frames), one `jointloc absloc --no-area-prediction` more times the search with no
+//! prior position and no heading: the first fix without `--start`, or after a long loss.
 
 use std::fmt::Write as _;
 use std::path::Path;
@@ -19,6 +21,7 @@ use jointloc_formats::outputs::summary::{Summary, read_json};
 use jointloc_geometry::trajectory::{Trajectory, TumOptions};
 use serde::Serialize;
 
+use super::ablations::absloc_run;
 use super::datasets::sim_into_place;
 use super::exec::Runner;
 use super::flights::jointloc_run;
@@ -28,6 +31,11 @@ use super::report::Dataset;
 
 /// A fix is right when it lies within this distance of the true ground point it measures.
 pub(super) const FIX_RIGHT_M: f64 = 1.0;
+
+/// Frames between two timed whole-map searches.
+const WHOLE_MAP_EVERY: usize = 100;
+/// Fixes after which the timed whole-map searches stop.
+const WHOLE_MAP_FIXES: usize = 5;
 
 /// One flight of the envelope table.
 #[derive(Debug, Clone, Serialize)]
@@ -50,6 +58,11 @@ pub struct EnvelopeRow {
     pub end: Option<Statistics>,
     /// What the frame loop sustains (`capacity_hz`).
     pub hz: Option<f64>,
+    /// Whole-map searches with no prior (every [`WHOLE_MAP_EVERY`]-th frame, at most
+    /// [`WHOLE_MAP_FIXES`] fixes): median seconds per search, and the fraction of the searches
+    /// that gave a right fix. `None` where virtual frames are matched (they need a prior).
+    pub whole_map_s: Option<f64>,
+    pub whole_map_right: Option<f64>,
     /// `jointloc sim …` and `jointloc run …`, as the report shows them.
     pub commands: Vec<String>,
     pub failed: Option<String>,
@@ -106,6 +119,8 @@ fn flight(
         online: None,
         end: None,
         hz: None,
+        whole_map_s: None,
+        whole_map_right: None,
         commands: Vec::new(),
         failed: None,
     };
@@ -176,12 +191,89 @@ fn flight(
     let (found, right) = fixes_right(&path, &dir.join("fixes.txt"), &d.gt)?;
     row.fixes_found = found;
     row.fixes_right = (found > 0).then(|| right as f64 / found as f64);
+    if single_frames(&path, altitude_m)? {
+        whole_map(&d, out, runner, &plan.matcher, &mut row)?;
+    }
     Ok(row)
+}
+
+/// Whether a frame at `altitude_m` spans enough map pixels to be matched alone (else virtual
+/// frames are, see `jointloc_system::MosaicConfig::below_frame_px`).
+fn single_frames(dataset: &Path, altitude_m: f64) -> anyhow::Result<bool> {
+    let camera = jointloc_formats::UavDataset::open(dataset)?.camera;
+    let info = MapInfo::read(&dataset.join("map.toml"))?;
+    let frame_px = camera.width as f64 * altitude_m / (0.5 * (camera.fx + camera.fy) * info.gsd_m);
+    let below = jointloc_system::JointLocConfig::default()
+        .mosaic
+        .below_frame_px;
+    Ok(frame_px >= below)
+}
+
+/// Times whole-map searches with neither position nor heading known (`jointloc absloc
+/// --no-area-prediction`, the last fix's heading forgotten).
+fn whole_map(
+    d: &Dataset,
+    out: &Path,
+    runner: &mut Runner,
+    matcher: &str,
+    row: &mut EnvelopeRow,
+) -> anyhow::Result<()> {
+    let runs = out.join("runs");
+    std::fs::create_dir_all(&runs).with_context(|| format!("creating {}", runs.display()))?;
+    let name = format!("{}-whole-map", d.name());
+    let config = runs.join(format!("{name}.toml"));
+    std::fs::write(&config, "use_last_heading = false\n")
+        .with_context(|| format!("writing {}", config.display()))?;
+    let extra: Vec<String> = args![
+        "--every",
+        WHOLE_MAP_EVERY,
+        "--limit",
+        WHOLE_MAP_FIXES,
+        "--no-area-prediction",
+        "--config",
+        config.display()
+    ]
+    .to_vec();
+    let (done, fixes, json) = absloc_run(d, out, runner, matcher, "whole-map", &extra)?;
+    row.commands.push(done.command.clone());
+    if done.outcome.is_err() {
+        return Ok(());
+    }
+    let text =
+        std::fs::read_to_string(&json).with_context(|| format!("reading {}", json.display()))?;
+    let v: serde_json::Value =
+        serde_json::from_str(&text).with_context(|| format!("{}: not JSON", json.display()))?;
+    row.whole_map_s = v["ms_per_fix_median"].as_f64().map(|ms| ms / 1e3);
+    let tried = v["frames"].as_u64().unwrap_or(0) as usize;
+    // `jointloc absloc --out` is TUM with more columns; failed frames are comments.
+    let est = metrics::read_tum_prefix(&fixes)?;
+    let found: Vec<(f64, [f64; 2])> = est
+        .timestamps
+        .iter()
+        .zip(&est.poses)
+        .map(|(&t, p)| {
+            let c = p.centre();
+            (t, [c.x, c.y])
+        })
+        .collect();
+    let right = right_count(&d.path, &found, &d.gt)?;
+    row.whole_map_right = (tried > 0).then(|| right as f64 / tried as f64);
+    Ok(())
 }
 
 /// Found fixes of a run and how many lie within [`FIX_RIGHT_M`] of the true ground point
 /// under the image centre, on the dataset's elevation model.
 fn fixes_right(dataset: &Path, fixes: &Path, gt: &Trajectory) -> anyhow::Result<(usize, usize)> {
+    let rows: Vec<(f64, [f64; 2])> = read_fixes(fixes)?
+        .iter()
+        .map(|f| (f.timestamp, [f.position[0], f.position[1]]))
+        .collect();
+    Ok((rows.len(), right_count(dataset, &rows, gt)?))
+}
+
+/// How many of `(timestamp, [x, y])` lie within [`FIX_RIGHT_M`] of the true ground point under
+/// the image centre.
+fn right_count(dataset: &Path, rows: &[(f64, [f64; 2])], gt: &Trajectory) -> anyhow::Result<usize> {
     let toml = dataset.join("map.toml");
     let info = MapInfo::read(&toml)?;
     let Some(elevation) = &info.elevation else {
@@ -191,23 +283,18 @@ fn fixes_right(dataset: &Path, fixes: &Path, gt: &Trajectory) -> anyhow::Result<
         );
     };
     let ground = Ground::from_model(ElevationModel::read(elevation, dataset)?);
-    let rows = read_fixes(fixes)?;
     let mut right = 0;
-    for f in &rows {
-        let Some(k) = gt
-            .timestamps
-            .iter()
-            .position(|&t| (t - f.timestamp).abs() < 1e-4)
-        else {
+    for &(t, [fx, fy]) in rows {
+        let Some(k) = gt.timestamps.iter().position(|&g| (g - t).abs() < 1e-4) else {
             continue;
         };
         if let Some((x, y)) = optical_axis_ground_point(&gt.poses[k], &ground)
-            && (f.position[0] - x).hypot(f.position[1] - y) <= FIX_RIGHT_M
+            && (fx - x).hypot(fy - y) <= FIX_RIGHT_M
         {
             right += 1;
         }
     }
-    Ok((rows.len(), right))
+    Ok(right)
 }
 
 /// The table, one line per altitude × sun change, mean ± std over terrains and seeds.
@@ -223,14 +310,17 @@ pub(super) fn envelope_md(s: &mut String, rows: &[EnvelopeRow]) {
          change of the sun's azimuth between map and flight; `jointloc run --sequential --start` \
          at the true take-off. Geo-referenced: frames with a world pose online. Fixes right: \
          found fixes within {FIX_RIGHT_M} m of the true ground point under the image centre. APE \
-         in the world frame, no alignment. Mean ± std over terrains and seeds.\n",
+         in the world frame, no alignment. Whole-map search: `jointloc absloc \
+         --no-area-prediction` every {WHOLE_MAP_EVERY}th frame with no prior position or heading \
+         (median s per search; right: searches that gave a right fix), where single frames are \
+         matched. Mean ± std over terrains and seeds.\n",
         rows[0].map_size_m
     );
     let _ = writeln!(
         s,
-        "| altitude m | sun change ° | flights | geo-referenced % | fixes right % | online APE rmse m | end APE rmse m | Hz |"
+        "| altitude m | sun change ° | flights | geo-referenced % | fixes right % | online APE rmse m | end APE rmse m | Hz | whole-map search s | right % |"
     );
-    let _ = writeln!(s, "|---|---|---|---|---|---|---|---|");
+    let _ = writeln!(s, "|---|---|---|---|---|---|---|---|---|---|");
     let mut cases: Vec<(f64, f64)> = Vec::new();
     for r in rows {
         if !cases.contains(&(r.altitude_m, r.sun_change_deg)) {
@@ -273,14 +363,17 @@ pub(super) fn envelope_md(s: &mut String, rows: &[EnvelopeRow]) {
             )
         };
         let hz: Vec<f64> = group.iter().filter_map(|r| r.hz).collect();
+        let whole: Vec<f64> = group.iter().filter_map(|r| r.whole_map_s).collect();
         let _ = writeln!(
             s,
-            "| {alt} | {sun} | {flights} | {} | {} | {} | {} | {} |",
+            "| {alt} | {sun} | {flights} | {} | {} | {} | {} | {} | {} | {} |",
             pct(|r| r.geo_referenced),
             pct(|r| r.fixes_right),
             ape(|r| r.online.as_ref()),
             ape(|r| r.end.as_ref()),
-            fmt_ms(&hz, 1)
+            fmt_ms(&hz, 1),
+            fmt_ms(&whole, 1),
+            pct(|r| r.whole_map_right)
         );
     }
     let _ = writeln!(
@@ -328,6 +421,8 @@ mod tests {
             online: Some(stats(online)),
             end: Some(stats(online / 2.0)),
             hz: Some(20.0),
+            whole_map_s: (alt >= 100.0).then_some(2.0),
+            whole_map_right: (alt >= 100.0).then_some(0.8),
             commands: vec![format!("jointloc sim --altitude {alt}")],
             failed: None,
         }
@@ -350,7 +445,7 @@ mod tests {
         );
         assert!(
             s.contains(
-                "| 10 | 30 | 2 | 50 ± 0 | 50 ± 25 | 0.300 ± 0.100 | 0.150 ± 0.050 | 20.0 ± 0.0 |"
+                "| 10 | 30 | 2 | 50 ± 0 | 50 ± 25 | 0.300 ± 0.100 | 0.150 ± 0.050 | 20.0 ± 0.0 | - | - |"
             ),
             "{s}"
         );
@@ -358,6 +453,7 @@ mod tests {
             s.contains("| 100 | 90 | 2, 1 failed: no world pose |"),
             "{s}"
         );
+        assert!(s.contains("| 2.0 ± 0.0 | 80 ± 0 |"), "{s}");
         assert!(s.find("| 10 | 30").unwrap() < s.find("| 100 | 90").unwrap());
         assert_eq!(s.matches("jointloc sim --altitude").count(), 2, "{s}");
     }
