@@ -296,6 +296,14 @@ impl PinholeCamera {
         })
     }
 
+    /// Horizontal field of view in degrees, edge to edge through the principal point's row;
+    /// `None` where an edge pixel's ray is at or beyond 90° from the axis.
+    pub fn horizontal_fov_deg(&self) -> Option<f64> {
+        let left = self.off_axis_angle(&Point2::new(-0.5, self.cy))?;
+        let right = self.off_axis_angle(&Point2::new(self.width as f64 - 0.5, self.cy))?;
+        Some((left + right).to_degrees())
+    }
+
     /// True when the camera has a lens model other than the identity.
     pub fn has_distortion(&self) -> bool {
         self.distortion.is_some_and(|d| !d.is_identity())
@@ -555,6 +563,18 @@ mod tests {
                     assert!((off - t).abs() < 1e-9, "{deg}°: {off}");
                 }
             }
+        }
+    }
+
+    #[test]
+    fn horizontal_field_of_view_of_a_pinhole_and_a_fisheye() {
+        let pinhole = PinholeCamera::ideal(500.0, 500, 400);
+        let expected = 2.0 * (250.0f64 / 500.0).atan().to_degrees();
+        assert!((pinhole.horizontal_fov_deg().unwrap() - expected).abs() < 1e-9);
+        for fov in [90.0, 133.0, 170.0] {
+            let fisheye = PinholeCamera::fisheye(fov, 640, 480, KannalaBrandt::default()).unwrap();
+            let got = fisheye.horizontal_fov_deg().unwrap();
+            assert!((got - fov).abs() < 1e-6, "{fov}: {got}");
         }
     }
 

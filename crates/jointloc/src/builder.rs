@@ -96,8 +96,17 @@ impl JointLocBuilder {
 
     /// Validates the settings, loads the matcher and starts the system.
     pub fn build(self) -> Result<JointLoc> {
-        let config = self.config;
+        let mut config = self.config;
         config.validate()?;
+        let fov = self.camera.horizontal_fov_deg();
+        if config.terrain.gain > 0.0 && fov.is_none_or(|f| f > config.terrain.max_fov_deg) {
+            tracing::info!(
+                fov_deg = fov,
+                max_fov_deg = config.terrain.max_fov_deg,
+                "terrain correction off: the camera's field of view is wider than [terrain] max_fov_deg"
+            );
+            config.terrain.gain = 0.0;
+        }
         let ground = self.tiles.ground();
         let map_gsd_m = self.tiles.gsd_m();
         let source: Box<dyn FixSource> = match self.source {

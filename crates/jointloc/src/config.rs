@@ -263,6 +263,12 @@ impl JointLocConfig {
                 "must be finite and > 0",
             ),
             (
+                "terrain.max_fov_deg",
+                self.terrain.max_fov_deg,
+                false,
+                "must be finite and > 0 (degrees)",
+            ),
+            (
                 "terrain.tau_m",
                 self.terrain.tau_m,
                 false,
@@ -338,7 +344,7 @@ mod tests {
     #[test]
     fn invalid_terrain_and_recovery_settings_are_rejected_with_their_field() {
         type Set = fn(&mut JointLocConfig);
-        let cases: [(Set, &str); 8] = [
+        let cases: [(Set, &str); 9] = [
             (|c| c.max_altitude_rate_mps = 0.0, "max_altitude_rate_mps"),
             (
                 |c| c.max_altitude_rate_mps = f64::NAN,
@@ -347,6 +353,7 @@ mod tests {
             (|c| c.terrain.gain = 1.5, "terrain.gain"),
             (|c| c.terrain.gain = f64::NAN, "terrain.gain"),
             (|c| c.terrain.tau_m = 0.0, "terrain.tau_m"),
+            (|c| c.terrain.max_fov_deg = f64::NAN, "terrain.max_fov_deg"),
             (|c| c.terrain.max_offset_m = -1.0, "terrain.max_offset_m"),
             (|c| c.new_map_after_lost_s = -1.0, "new_map_after_lost_s"),
             (

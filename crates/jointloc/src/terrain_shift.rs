@@ -35,6 +35,13 @@ pub struct TerrainConfig {
     /// correction converges over successive fixes. 0.3 measured better than 0.6 on
     /// mountain medium (`docs/jointloc.md` §"Terrain correction").
     pub gain: f64,
+    /// A camera whose horizontal field of view is wider than this many degrees gets no
+    /// correction (gain 0). Over a footprint several times the altitude wide, a tilt of the
+    /// SLAM's map of a milliradian puts its points centimetres off the model at the edges,
+    /// which the estimate reads as a shift: with a 133° fisheye the correction moved the
+    /// fixes 7–15 cm and its outputs were 1.3–4× a pinhole's on gravel, with no correction
+    /// 0.8–1.7× (`docs/camera.md`). 90: between the pinholes (≤ 60°) and fisheyes measured.
+    pub max_fov_deg: f64,
     /// σ of a map point's height against the model, metres.
     pub sigma_m: f64,
     /// Huber threshold in units of `sigma_m` (rocks stand off a smooth model).
@@ -60,6 +67,7 @@ impl Default for TerrainConfig {
     fn default() -> Self {
         Self {
             gain: 0.3,
+            max_fov_deg: 90.0,
             sigma_m: 0.1,
             huber: 1.0,
             tau_m: 0.03,

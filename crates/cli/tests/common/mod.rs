@@ -74,28 +74,35 @@ fn seeded(seed: &str) -> &'static Seeded {
     };
     cell.get_or_init(|| {
         let dir = tempfile::tempdir().unwrap();
-        let data = dir.path().join("data");
-        let sim = jointloc(&[
-            "sim",
-            "--out",
-            s(&data),
-            "--length-m",
-            "30",
-            "--seed",
-            seed,
-            "--terrain",
-            "crater",
-        ]);
-        assert!(
-            sim.status.success(),
-            "seed {seed}: {}",
-            String::from_utf8_lossy(&sim.stderr)
-        );
+        sim_crater(&dir.path().join("data"), seed, &[]);
         Seeded {
             dir,
             base: OnceLock::new(),
         }
     })
+}
+
+/// Simulates the tests' 30 m flight over a crater for `seed` into `out`, with `extra`
+/// `jointloc sim` arguments (a camera, say); panics with the simulator's stderr on failure.
+pub fn sim_crater(out: &Path, seed: &str, extra: &[&str]) {
+    let mut args = vec![
+        "sim",
+        "--out",
+        s(out),
+        "--length-m",
+        "30",
+        "--seed",
+        seed,
+        "--terrain",
+        "crater",
+    ];
+    args.extend_from_slice(extra);
+    let sim = jointloc(&args);
+    assert!(
+        sim.status.success(),
+        "seed {seed} {extra:?}: {}",
+        String::from_utf8_lossy(&sim.stderr)
+    );
 }
 
 /// The simulated dataset of a seed (a 30 m flight over a crater), made once per test binary.
