@@ -19,6 +19,8 @@
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
+use crate::whole_map::WholeMapConfig;
+
 /// Settings of the correlation.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
@@ -48,6 +50,10 @@ pub struct CorrelationConfig {
     /// no fix. On six development flights at 10 m (three under suns 41–156° apart) all 20
     /// placements more than 2 m off had w < 0.06 and 416 of the 421 within 1 m had w ≥ 0.08.
     pub min_confidence: f64,
+    /// With no prior at all (no take-off position, no fix yet), the whole map is searched
+    /// coarse to fine (`[absloc.correlation.whole_map]`; `candidates = 0`: no fix until a
+    /// prior exists).
+    pub whole_map: WholeMapConfig,
 }
 
 impl Default for CorrelationConfig {
@@ -63,6 +69,7 @@ impl Default for CorrelationConfig {
             heading_step_deg: 2.0,
             min_heading_step_deg: 0.5,
             min_confidence: 0.07,
+            whole_map: WholeMapConfig::default(),
         }
     }
 }

@@ -32,6 +32,7 @@ pub mod shortlist;
 pub mod ssim;
 pub mod tiles;
 pub mod warp;
+pub mod whole_map;
 
 pub use cache::CacheStatus;
 pub use confidence::{ConfidenceMode, search_radius};

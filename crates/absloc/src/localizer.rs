@@ -15,6 +15,7 @@ use image::GrayImage;
 use jointloc_geometry::PinholeCamera;
 use jointloc_geometry::homography::HomographyConfig;
 use nalgebra::{Matrix3, Point2};
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::cache::{self, CacheStatus};
@@ -27,7 +28,8 @@ use crate::search::{self, SearchInput};
 use crate::shortlist::{ShortlistConfig, TileIndex};
 use crate::ssim::{SsimConfig, ssim_masked};
 use crate::tiles::MapTiles;
-use crate::warp::{Lens, normalise_lens, resample, warp_into_map_lens};
+use crate::warp::{Lens, NormalisedFrame, normalise_lens, resample, warp_into_map_lens};
+use crate::whole_map::{CoarseMap, CoarsePeak, distinct, peaks, pool};
 
 /// Settings of [`AbsLocalizer`].
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -146,6 +148,14 @@ impl AbsLocConfig {
                 "min_texture_std",
                 self.min_texture_std.to_string(),
                 "must be ≥ 0",
+            ));
+        }
+        let wm = &self.correlation.whole_map;
+        if wm.coarse_view_px < 4 {
+            return Err(bad(
+                "correlation.whole_map.coarse_view_px",
+                wm.coarse_view_px.to_string(),
+                "must be ≥ 4",
             ));
         }
         let a = &self.accept;
@@ -316,6 +326,9 @@ pub struct AbsLocalizer {
     /// Vocabulary and the words of the tile keypoints, built at the first whole-map search
     /// that needs them.
     shortlist: OnceLock<Option<TileIndex>>,
+    /// The map pooled for the whole-map correlation of virtual frames, built at the first one
+    /// with no prior.
+    coarse_map: OnceLock<Option<CoarseMap>>,
 }
 
 impl AbsLocalizer {
@@ -350,6 +363,7 @@ impl AbsLocalizer {
             },
             upsample: None,
             shortlist: OnceLock::new(),
+            coarse_map: OnceLock::new(),
         })
     }
 
@@ -382,6 +396,7 @@ impl AbsLocalizer {
         self.cache_status = loaded.status;
         self.upsample = Some(factor);
         self.shortlist = OnceLock::new();
+        self.coarse_map = OnceLock::new();
         self.reset();
         Ok(())
     }
@@ -483,7 +498,17 @@ impl AbsLocalizer {
             None => None,
         };
         if view.zoom > 1.0 {
-            return Ok(self.correlate_view(view, coverage.as_ref(), prior, start));
+            let outcome = self.correlate_view(view, coverage.as_ref(), prior, start);
+            match &outcome {
+                Outcome::Fix(f) if f.global => {
+                    tracing::info!(ms = f.ms, position = ?f.position, "whole-map search of a virtual frame: fix");
+                }
+                Outcome::Failed(f) if f.global => {
+                    tracing::info!(ms = f.ms, reason = ?f.reason, "whole-map search of a virtual frame: no fix");
+                }
+                _ => {}
+            }
+            return Ok(outcome);
         }
         self.adapt_map_scale(altitude)?;
         let std = grey_std(frame);
@@ -633,10 +658,11 @@ impl AbsLocalizer {
     }
 
     /// Registers a virtual frame by correlation (see [`crate::correlate`]) within
-    /// [`CorrelationConfig::search_radius_m`] of the prior position (else the last fix), with
-    /// the prior heading (else the last fix's, else a sweep of
-    /// [`CorrelationConfig::rotation_hypotheses`] angles). The map is used as it stands (a
-    /// virtual frame is never the reason to upsample it).
+    /// [`CorrelationConfig::search_radius_m`] of the prior position (else over the whole map,
+    /// [`crate::whole_map`]), with the prior heading (else the last fix's, else a sweep of
+    /// [`CorrelationConfig::rotation_hypotheses`] angles; a whole-map search sweeps unless the
+    /// prior has a heading). The map is used as it stands (a virtual frame is never the reason
+    /// to upsample it).
     fn correlate_view(
         &mut self,
         view: &FrameView<'_>,
@@ -645,18 +671,16 @@ impl AbsLocalizer {
         start: Instant,
     ) -> Outcome {
         let cfg = self.config.correlation;
-        let centre = prior
-            .position
-            .map(|[x, y]| (x, y))
-            .or(self.state.last_position);
-        let Some((px, py)) = centre else {
-            return self.fail(FailureReason::NoPrior, 0, false, start);
-        };
+        // No prior position: the whole map, all headings but the prior's. Not the last fix's
+        // place or heading: a search around one fix would only confirm it (the caller gives
+        // the fused pose as the prior once it trusts one).
+        let centre = prior.position.map(|[x, y]| (x, y));
         let own_heading = self
             .config
             .use_last_heading
             .then_some(self.state.heading)
-            .flatten();
+            .flatten()
+            .filter(|_| centre.is_some());
         let angles: Vec<f64> = match prior.heading.or(own_heading) {
             Some(h) => vec![h],
             None => sweep(cfg.rotation_hypotheses.max(1)),
@@ -665,8 +689,19 @@ impl AbsLocalizer {
         let expected = self.expected_scale(view.altitude * view.zoom);
         let principal = (self.camera.cx, self.camera.cy);
         let map = self.tiles.map();
-        let radius = (cfg.search_radius_m / self.tiles.gsd_m()).ceil() as i64;
-        let (pu, pv) = self.tiles.world_to_pixel(px, py);
+        let global = centre.is_none();
+        // (heading, principal point's map pixel, radius in map pixels) to place the view at.
+        let seeds: Vec<(f64, (f64, f64), i64)> = match centre {
+            Some((px, py)) => {
+                let radius = (cfg.search_radius_m / self.tiles.gsd_m()).ceil() as i64;
+                let at = self.tiles.world_to_pixel(px, py);
+                angles.iter().map(|&a| (a, at, radius)).collect()
+            }
+            None if cfg.whole_map.candidates == 0 => {
+                return self.fail(FailureReason::NoPrior, 0, false, start);
+            }
+            None => self.whole_map_seeds(view, coverage.as_ref(), &angles, expected),
+        };
         let mut best: Option<Placement> = None;
         let mut last_miss = NoPeak::TooSmall { valid_px: 0 };
         let mut searched = 0usize;
@@ -684,8 +719,8 @@ impl AbsLocalizer {
                 Err(miss) => last_miss = miss,
             }
         };
-        for &angle in &angles {
-            consider(self, angle, (pu, pv), radius, &mut best);
+        for &(angle, at, radius) in &seeds {
+            consider(self, angle, at, radius, &mut best);
         }
         // Halve the angle step around the best angle down to the refinement's resolution,
         // within a few pixels of the best placement.
@@ -714,7 +749,7 @@ impl AbsLocalizer {
             valid,
         }) = best
         else {
-            return self.fail(FailureReason::NoPeak(last_miss), searched, false, start);
+            return self.fail(FailureReason::NoPeak(last_miss), searched, global, start);
         };
         let (ox, oy) = (x0 as f64 + peak.offset[0], y0 as f64 + peak.offset[1]);
         let pc = normalised.transform.forward(principal.0, principal.1);
@@ -751,7 +786,7 @@ impl AbsLocalizer {
             return self.fail(
                 FailureReason::NoPeak(NoPeak::LowConfidence { confidence }),
                 searched,
-                false,
+                global,
                 start,
             );
         }
@@ -772,7 +807,7 @@ impl AbsLocalizer {
             tile,
             inliers: valid.iter().filter(|&&v| v).count(),
             searched_tiles: searched,
-            global: false,
+            global,
             homography: h,
             heading: normalised.transform.angle,
             scale: expected,
@@ -783,21 +818,18 @@ impl AbsLocalizer {
         Outcome::Fix(fix)
     }
 
-    /// The best placement of `view` turned by `angle`, its principal point within `radius` map
-    /// pixels of map pixel `(pu, pv)`; `coverage`: [`Coverage::image`] of the view's mask.
-    #[allow(clippy::too_many_arguments)]
-    fn place(
+    /// `view` turned by `angle` and scaled to the map's pixels, its gradient magnitude (the
+    /// signal the correlation compares) and which of its pixels are valid; `coverage`:
+    /// [`Coverage::image`] of the view's mask.
+    fn view_grid(
         &self,
         view: &FrameView<'_>,
         coverage: Option<&GrayImage>,
         angle: f64,
         expected: f64,
-        (pu, pv): (f64, f64),
-        radius: i64,
-    ) -> std::result::Result<Placement, NoPeak> {
+    ) -> (NormalisedFrame, Grid, Vec<bool>) {
         let cfg = self.config.correlation;
         let principal = (self.camera.cx, self.camera.cy);
-        let map = self.tiles.map();
         let normalised = normalise_lens(view.image, None, principal, expected, angle, None);
         let (vw, vh) = normalised.image.dimensions();
         let (vw, vh) = (vw as usize, vh as usize);
@@ -834,6 +866,113 @@ impl AbsLocalizer {
                 .collect(),
         }
         .gradient_magnitude(cfg.smoothing_px);
+        (normalised, grid, valid)
+    }
+
+    /// Where on the whole map a virtual frame may lie when there is no prior (see
+    /// [`crate::whole_map`]): the best distinct coarse placements over `angles`, each as
+    /// (heading, its principal point's map pixel, the radius in map pixels the fine
+    /// correlation searches around it).
+    fn whole_map_seeds(
+        &self,
+        view: &FrameView<'_>,
+        coverage: Option<&GrayImage>,
+        angles: &[f64],
+        expected: f64,
+    ) -> Vec<(f64, (f64, f64), i64)> {
+        let cfg = self.config.correlation;
+        let wm = cfg.whole_map;
+        let t = Instant::now();
+        let views: Vec<(f64, NormalisedFrame, Grid, Vec<bool>)> = angles
+            .par_iter()
+            .map(|&a| {
+                let (n, g, v) = self.view_grid(view, coverage, a, expected);
+                (a, n, g, v)
+            })
+            .collect();
+        let width = views.first().map_or(0, |v| v.2.width);
+        let coarse = self.coarse_map.get_or_init(|| {
+            let factor = (width / wm.coarse_view_px.max(1)).max(1);
+            let built = CoarseMap::new(self.tiles.map(), factor, cfg.smoothing_px);
+            tracing::info!(
+                factor,
+                seconds = t.elapsed().as_secs_f64(),
+                "map pooled for the whole-map correlation of virtual frames"
+            );
+            built
+        });
+        let Some(coarse) = coarse.as_ref() else {
+            return Vec::new();
+        };
+        let f = coarse.factor();
+        let mut all: Vec<(CoarsePeak, usize)> = views
+            .iter()
+            .enumerate()
+            .flat_map(|(i, (_, _, grid, valid))| {
+                let (cells, ok) = pool(grid, valid, f);
+                coarse
+                    .ncc(&cells, &ok)
+                    .map(|(s, w, h)| peaks(&s, w, h, wm.per_heading, wm.exclusion_cells))
+                    .unwrap_or_default()
+                    .into_iter()
+                    .map(move |p| (p, i))
+            })
+            .collect();
+        all.sort_by(|(a, i), (b, j)| {
+            b.score
+                .total_cmp(&a.score)
+                .then((i, a.y, a.x).cmp(&(j, b.y, b.x)))
+        });
+        let kept = distinct(all, wm.candidates, wm.exclusion_cells, |(p, _)| (p.x, p.y));
+        tracing::debug!(
+            best = kept.first().map(|(p, _)| p.score),
+            candidates = kept.len(),
+            ms = t.elapsed().as_secs_f64() * 1e3,
+            "whole-map correlation of a virtual frame"
+        );
+        // Each placement also at a third of the sweep's step either side: the fine correlation
+        // of a 200-pixel view wants its heading within a few degrees.
+        let third = if angles.len() > 1 {
+            std::f64::consts::TAU / angles.len() as f64 / 3.0
+        } else {
+            0.0
+        };
+        let principal = (self.camera.cx, self.camera.cy);
+        kept.into_iter()
+            .flat_map(|(p, i)| {
+                let (angle, normalised, ..) = &views[i];
+                let pc = normalised.transform.forward(principal.0, principal.1);
+                let at = ((p.x * f) as f64 + pc.0, (p.y * f) as f64 + pc.1);
+                let turns: &[f64] = if third > 0.0 {
+                    &[0.0, -1.0, 1.0]
+                } else {
+                    &[0.0]
+                };
+                turns
+                    .iter()
+                    .map(move |t| (angle + t * third, at, 2 * f as i64))
+            })
+            .collect()
+    }
+
+    /// The best placement of `view` turned by `angle`, its principal point within `radius` map
+    /// pixels of map pixel `(pu, pv)`; `coverage`: [`Coverage::image`] of the view's mask.
+    #[allow(clippy::too_many_arguments)]
+    fn place(
+        &self,
+        view: &FrameView<'_>,
+        coverage: Option<&GrayImage>,
+        angle: f64,
+        expected: f64,
+        (pu, pv): (f64, f64),
+        radius: i64,
+    ) -> std::result::Result<Placement, NoPeak> {
+        let cfg = self.config.correlation;
+        let principal = (self.camera.cx, self.camera.cy);
+        let map = self.tiles.map();
+        let (normalised, grid, valid) = self.view_grid(view, coverage, angle, expected);
+        let (vw, vh) = normalised.image.dimensions();
+        let (vw, vh) = (vw as usize, vh as usize);
         // The window: the view placed with its principal point at the prior, ± radius.
         let pc = normalised.transform.forward(principal.0, principal.1);
         let x0 = ((pu - pc.0).round() as i64 - radius).max(0);

@@ -1,8 +1,9 @@
 //! Virtual frames (`AbsLocalizer::localize_view` with a zoom): a strip of a synthetic map,
 //! seen as the orthographic virtual frame of a UAV at 10 m with zoom 5, is registered by
 //! correlation around a prior a few metres off and with the heading 1.5° off: the fix is
-//! the map point under the principal point, the heading is refined; too far a prior, or none,
-//! gives a failure, never a wrong fix.
+//! the map point under the principal point, the heading is refined; too far a prior gives a
+//! failure, never a wrong fix. With no prior the whole map is searched, coarse to fine, over
+//! all headings: the strip is found, a view of another map is not placed.
 
 mod common;
 
@@ -81,9 +82,41 @@ fn a_strip_seen_from_10_m_is_placed_to_a_tenth_of_a_map_pixel() {
 }
 
 #[test]
-fn no_prior_no_fix_and_too_little_ground_is_refused() {
+fn with_no_prior_the_whole_map_is_searched_and_too_little_ground_is_refused() {
     let mut loc = localizer(3);
-    let image = frame_from_map(loc.tiles().map(), (500.0, 500.0), 0.4, 0.0, 500);
+    for (seed, (u, v), heading) in [(3u64, (500.0, 500.0), 0.0), (4, (300.0, 710.0), 2.2)] {
+        let mut loc = localizer(seed);
+        let scale = ALT * ZOOM / (500.0 * GSD);
+        let image = frame_from_map(loc.tiles().map(), (u, v), scale, heading, 500);
+        let valid = strip();
+        let view = FrameView {
+            image: &image,
+            altitude: ALT,
+            zoom: ZOOM,
+            valid: Some(&valid),
+        };
+        let out = loc.localize_view(&view, &Prior::default()).unwrap();
+        let fix = out.fix().unwrap_or_else(|| panic!("seed {seed}: {out:?}"));
+        let (x, y) = loc.tiles().pixel_to_world(u, v);
+        let err = (fix.position[0] - x).hypot(fix.position[1] - y);
+        assert!(err < 0.1 * GSD, "seed {seed}: {err} m");
+        assert!(fix.global, "a whole-map search is flagged global");
+        let turn = (fix.heading - heading + std::f64::consts::PI).rem_euclid(std::f64::consts::TAU)
+            - std::f64::consts::PI;
+        assert!(turn.abs() < 0.6f64.to_radians(), "seed {seed}: {turn} rad");
+
+        // The same view against another map: nothing there to find, so no fix.
+        let mut other = localizer(seed + 100);
+        match other.localize_view(&view, &Prior::default()).unwrap() {
+            Outcome::Failed(f) => assert!(f.global, "{f:?}"),
+            Outcome::Fix(f) => panic!("seed {seed}: a fix on another map: {f:?}"),
+        }
+    }
+    // The whole-map search turned off: no prior, no fix.
+    let mut config = AbsLocConfig::default();
+    config.correlation.whole_map.candidates = 0;
+    let mut off = orb_localizer(3, 1000, GSD, config);
+    let image = frame_from_map(off.tiles().map(), (500.0, 500.0), 0.4, 0.0, 500);
     let valid = strip();
     let view = FrameView {
         image: &image,
@@ -91,7 +124,7 @@ fn no_prior_no_fix_and_too_little_ground_is_refused() {
         zoom: ZOOM,
         valid: Some(&valid),
     };
-    let out = loc.localize_view(&view, &Prior::default()).unwrap();
+    let out = off.localize_view(&view, &Prior::default()).unwrap();
     assert!(
         matches!(&out, Outcome::Failed(f) if f.reason == FailureReason::NoPrior),
         "{out:?}"
