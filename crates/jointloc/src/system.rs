@@ -365,7 +365,7 @@ impl JointLoc {
                 pose: r.pose,
                 keyframe: map.last_keyframe().map(|kf| (kf.id, kf.pose.0)),
             };
-            let prior = self.prior(r.pose, timestamp);
+            let prior = self.prior(r.pose, timestamp, zoom > 1.0);
             let request = FixRequest {
                 frame: index,
                 timestamp,
@@ -621,6 +621,14 @@ impl JointLoc {
         Some(outcome)
     }
 
+    /// No world pose yet, no alignment and no take-off position: nothing but the fixes says
+    /// where the flight is.
+    fn unanchored(&self) -> bool {
+        self.alignment.is_none()
+            && self.last_world_pose.is_none()
+            && self.config.start_position.is_none()
+    }
+
     /// The search prior from the fused pose: position and heading of the last world pose;
     /// before the alignment, the current SLAM pose through the provisional one-fix similarity
     /// (after a new map, the last world pose of the old one until then). A last world pose
@@ -630,7 +638,21 @@ impl JointLoc {
     /// [`JointLocConfig::sweep_after_failures_aligned`]-th once geo-referenced) leaves the
     /// heading out, so the localiser sweeps rotations: the predicted heading may be what is
     /// wrong (a wrong fix or alignment), and with it every search would fail.
-    fn prior(&self, slam_pose: Option<CameraToWorld>, timestamp: f64) -> Prior {
+    ///
+    /// A virtual frame with no take-off position, before any world pose
+    /// ([`Self::unanchored`]), gets no prior: each fix the first alignment needs then comes
+    /// from its own whole-map search. A search around the first fix would only confirm it: a
+    /// wrong one, over gravel under another sun, was followed by 7 local fixes moving with the
+    /// UAV and made an alignment 630 m off (`docs/absloc.md` §"With no prior: the whole map").
+    fn prior(
+        &self,
+        slam_pose: Option<CameraToWorld>,
+        timestamp: f64,
+        virtual_frame: bool,
+    ) -> Prior {
+        if virtual_frame && self.unanchored() {
+            return Prior::default();
+        }
         // Before the alignment, the provisional one is fresher than a world pose left from a
         // map set aside after a loss.
         let (predicted, from_last_world_pose) =
