@@ -151,11 +151,11 @@ impl AbsLocConfig {
             ));
         }
         let wm = &self.correlation.whole_map;
-        if wm.coarse_view_px < 4 {
+        if wm.coarse_view_px < 4 || !(0.0..=1.0).contains(&wm.min_confidence) {
             return Err(bad(
-                "correlation.whole_map.coarse_view_px",
-                wm.coarse_view_px.to_string(),
-                "must be ≥ 4",
+                "correlation.whole_map",
+                format!("{wm:?}"),
+                "coarse_view_px ≥ 4, min_confidence in [0, 1]",
             ));
         }
         let a = &self.accept;
@@ -782,7 +782,12 @@ impl AbsLocalizer {
             ssim_masked(&region, &values, vw, vh, Some(&valid), &self.config.ssim).unwrap_or(0.0);
         let match_score = peak.score.clamp(0.0, 1.0);
         let confidence = self.config.confidence.confidence(ssim, match_score);
-        if confidence < cfg.min_confidence {
+        let min_confidence = if global {
+            cfg.min_confidence.max(cfg.whole_map.min_confidence)
+        } else {
+            cfg.min_confidence
+        };
+        if confidence < min_confidence {
             return self.fail(
                 FailureReason::NoPeak(NoPeak::LowConfidence { confidence }),
                 searched,

@@ -36,6 +36,13 @@ pub struct WholeMapConfig {
     pub exclusion_cells: usize,
     /// Coarse placements kept per heading before the placements of all headings are ranked.
     pub per_heading: usize,
+    /// A whole-map placement is a fix only with at least this confidence (SSIM ×
+    /// correlation; a local search needs `min_confidence`, 0.07): it is the best of 10⁵
+    /// times more placements, so a wrong place scores higher too. On 2 km maps at 10 m
+    /// three whole-map searches in a row placed a crater flight's views 543 m off at w
+    /// 0.07–0.08, consistently enough to make its first alignment; right placements had w
+    /// 0.19–0.47 on the flights measured (`docs/absloc.md`).
+    pub min_confidence: f64,
 }
 
 impl Default for WholeMapConfig {
@@ -45,6 +52,7 @@ impl Default for WholeMapConfig {
             candidates: 8,
             exclusion_cells: 3,
             per_heading: 8,
+            min_confidence: 0.15,
         }
     }
 }
