@@ -365,7 +365,8 @@ impl JointLoc {
                 pose: r.pose,
                 keyframe: map.last_keyframe().map(|kf| (kf.id, kf.pose.0)),
             };
-            let prior = self.prior(r.pose, timestamp, zoom > 1.0);
+            // Threaded, the virtual frame is rendered on the other thread: `job`, no `view`.
+            let prior = self.prior(r.pose, timestamp, job.is_some() || view.is_some());
             let request = FixRequest {
                 frame: index,
                 timestamp,
