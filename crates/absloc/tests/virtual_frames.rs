@@ -29,19 +29,29 @@ fn strip() -> Vec<bool> {
         .collect()
 }
 
+/// The map around pixel `centre` as the virtual frame of a UAV at 10 m with zoom 5 sees it,
+/// its x axis at `heading`.
+fn seen_from_10_m(map: &image::GrayImage, centre: (f64, f64), heading: f64) -> image::GrayImage {
+    frame_from_map(map, centre, ALT * ZOOM / (500.0 * GSD), heading, 500)
+}
+
+/// `image` as a virtual frame from 10 m with zoom 5, valid where `valid`.
+fn virtual_view<'a>(image: &'a image::GrayImage, valid: &'a [bool]) -> FrameView<'a> {
+    FrameView {
+        image,
+        altitude: ALT,
+        zoom: ZOOM,
+        valid: Some(valid),
+    }
+}
+
 #[test]
 fn a_strip_seen_from_10_m_is_placed_to_a_tenth_of_a_map_pixel() {
     for (seed, (u, v), heading) in [(1u64, (480.0, 530.0), 0.6), (2, (610.0, 420.0), 2.4)] {
         let mut loc = localizer(seed);
-        let scale = ALT * ZOOM / (500.0 * GSD);
-        let image = frame_from_map(loc.tiles().map(), (u, v), scale, heading, 500);
+        let image = seen_from_10_m(loc.tiles().map(), (u, v), heading);
         let valid = strip();
-        let view = FrameView {
-            image: &image,
-            altitude: ALT,
-            zoom: ZOOM,
-            valid: Some(&valid),
-        };
+        let view = virtual_view(&image, &valid);
         let (x, y) = loc.tiles().pixel_to_world(u, v);
         let prior = Prior {
             position: Some([x + 4.0, y - 3.0]),
@@ -86,15 +96,9 @@ fn with_no_prior_the_whole_map_is_searched_and_too_little_ground_is_refused() {
     let mut loc = localizer(3);
     for (seed, (u, v), heading) in [(3u64, (500.0, 500.0), 0.0), (4, (300.0, 710.0), 2.2)] {
         let mut loc = localizer(seed);
-        let scale = ALT * ZOOM / (500.0 * GSD);
-        let image = frame_from_map(loc.tiles().map(), (u, v), scale, heading, 500);
+        let image = seen_from_10_m(loc.tiles().map(), (u, v), heading);
         let valid = strip();
-        let view = FrameView {
-            image: &image,
-            altitude: ALT,
-            zoom: ZOOM,
-            valid: Some(&valid),
-        };
+        let view = virtual_view(&image, &valid);
         let out = loc.localize_view(&view, &Prior::default()).unwrap();
         let fix = out.fix().unwrap_or_else(|| panic!("seed {seed}: {out:?}"));
         let (x, y) = loc.tiles().pixel_to_world(u, v);
@@ -116,14 +120,9 @@ fn with_no_prior_the_whole_map_is_searched_and_too_little_ground_is_refused() {
     let mut config = AbsLocConfig::default();
     config.correlation.whole_map.candidates = 0;
     let mut off = orb_localizer(3, 1000, GSD, config);
-    let image = frame_from_map(off.tiles().map(), (500.0, 500.0), 0.4, 0.0, 500);
+    let image = seen_from_10_m(off.tiles().map(), (500.0, 500.0), 0.0);
     let valid = strip();
-    let view = FrameView {
-        image: &image,
-        altitude: ALT,
-        zoom: ZOOM,
-        valid: Some(&valid),
-    };
+    let view = virtual_view(&image, &valid);
     let out = off.localize_view(&view, &Prior::default()).unwrap();
     assert!(
         matches!(&out, Outcome::Failed(f) if f.reason == FailureReason::NoPrior),
