@@ -19,6 +19,7 @@
 
 pub mod cache;
 pub mod candidate;
+pub mod coarse_places;
 pub mod confidence;
 pub mod correlate;
 pub mod error;

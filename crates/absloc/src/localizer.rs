@@ -20,6 +20,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::cache::{self, CacheStatus};
 use crate::candidate::{AcceptConfig, Candidate, MatchContext, QueryView, Rejection, select};
+use crate::coarse_places::{CoarsePlaces, ViewSignals};
 use crate::confidence::{ConfidenceMode, RADIUS_RANGE, search_radius};
 use crate::correlate::{CorrelationConfig, Grid, NoPeak, correlate};
 use crate::error::{AbslocError, Result};
@@ -29,7 +30,6 @@ use crate::shortlist::{ShortlistConfig, TileIndex};
 use crate::ssim::{SsimConfig, ssim_masked};
 use crate::tiles::MapTiles;
 use crate::warp::{Lens, NormalisedFrame, normalise_lens, resample, warp_into_map_lens};
-use crate::whole_map::{CoarseMap, CoarsePeak, distinct, peaks, pool};
 
 /// Settings of [`AbsLocalizer`].
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -328,7 +328,7 @@ pub struct AbsLocalizer {
     shortlist: OnceLock<Option<TileIndex>>,
     /// The map pooled for the whole-map correlation of virtual frames, built at the first one
     /// with no prior.
-    coarse_map: OnceLock<Option<CoarseMap>>,
+    coarse_map: OnceLock<Option<CoarsePlaces>>,
 }
 
 impl AbsLocalizer {
@@ -711,7 +711,18 @@ impl AbsLocalizer {
                             radius: i64,
                             best: &mut Option<Placement>| {
             searched += 1;
-            match this.place(view, coverage.as_ref(), angle, expected, centre, radius) {
+            let placed = this.place(view, coverage.as_ref(), angle, expected, centre, radius);
+            if let (true, Ok(p)) = (global, &placed) {
+                let (x, y) = this.placement_world(p);
+                tracing::trace!(
+                    x,
+                    y,
+                    heading_deg = angle.to_degrees(),
+                    score = p.peak.score,
+                    "whole-map seed refined"
+                );
+            }
+            match placed {
                 Ok(p) if best.as_ref().is_none_or(|b| p.peak.score > b.peak.score) => {
                     *best = Some(p)
                 }
@@ -742,18 +753,17 @@ impl AbsLocalizer {
             }
             step /= 2.0;
         }
-        let Some(Placement {
+        let Some(best) = best else {
+            return self.fail(FailureReason::NoPeak(last_miss), searched, global, start);
+        };
+        let (x, y) = self.placement_world(&best);
+        let Placement {
             peak,
             view: normalised,
             window: [x0, y0],
             valid,
-        }) = best
-        else {
-            return self.fail(FailureReason::NoPeak(last_miss), searched, global, start);
-        };
+        } = best;
         let (ox, oy) = (x0 as f64 + peak.offset[0], y0 as f64 + peak.offset[1]);
-        let pc = normalised.transform.forward(principal.0, principal.1);
-        let (x, y) = self.tiles.pixel_to_world(ox + pc.0, oy + pc.1);
         let shift = Matrix3::new(1.0, 0.0, ox, 0.0, 1.0, oy, 0.0, 0.0, 1.0);
         let h = shift * normalised.transform.matrix();
         // SSIM of the view's valid pixels against the map under them.
@@ -788,6 +798,13 @@ impl AbsLocalizer {
             cfg.min_confidence
         };
         if confidence < min_confidence {
+            tracing::debug!(
+                x,
+                y,
+                confidence,
+                global,
+                "virtual frame placed below the confidence gate"
+            );
             return self.fail(
                 FailureReason::NoPeak(NoPeak::LowConfidence { confidence }),
                 searched,
@@ -821,6 +838,16 @@ impl AbsLocalizer {
         };
         tracing::debug!(?fix.position, fix.confidence, peak.score, peak.second, "virtual frame fix");
         Outcome::Fix(fix)
+    }
+
+    /// World x, y of the principal point of a placed view.
+    fn placement_world(&self, p: &Placement) -> (f64, f64) {
+        let pc = p.view.transform.forward(self.camera.cx, self.camera.cy);
+        let (ox, oy) = (
+            p.window[0] as f64 + p.peak.offset[0],
+            p.window[1] as f64 + p.peak.offset[1],
+        );
+        self.tiles.pixel_to_world(ox + pc.0, oy + pc.1)
     }
 
     /// `view` turned by `angle` and scaled to the map's pixels, its gradient magnitude (the
@@ -898,7 +925,7 @@ impl AbsLocalizer {
         let width = views.first().map_or(0, |v| v.2.width);
         let coarse = self.coarse_map.get_or_init(|| {
             let factor = (width / wm.coarse_view_px.max(1)).max(1);
-            let built = CoarseMap::new(self.tiles.map(), factor, cfg.smoothing_px);
+            let built = CoarsePlaces::new(self.tiles.map(), factor, cfg.smoothing_px);
             tracing::info!(
                 factor,
                 seconds = t.elapsed().as_secs_f64(),
@@ -909,28 +936,23 @@ impl AbsLocalizer {
         let Some(coarse) = coarse.as_ref() else {
             return Vec::new();
         };
-        let f = coarse.factor();
-        let mut all: Vec<(CoarsePeak, usize)> = views
+        let signals: Vec<ViewSignals> = views
             .iter()
-            .enumerate()
-            .flat_map(|(i, (_, _, grid, valid))| {
-                let (cells, ok) = pool(grid, valid, f);
-                coarse
-                    .ncc(&cells, &ok)
-                    .map(|(s, w, h)| peaks(&s, w, h, wm.per_heading, wm.exclusion_cells))
-                    .unwrap_or_default()
-                    .into_iter()
-                    .map(move |p| (p, i))
+            .map(|(_, normalised, gradient, valid)| {
+                let pc = normalised.transform.forward(self.camera.cx, self.camera.cy);
+                ViewSignals {
+                    gradient: gradient.clone(),
+                    intensity: intensity(&normalised.image),
+                    valid: valid.clone(),
+                    principal: [pc.0, pc.1],
+                }
             })
             .collect();
-        all.sort_by(|(a, i), (b, j)| {
-            b.score
-                .total_cmp(&a.score)
-                .then((i, a.y, a.x).cmp(&(j, b.y, b.x)))
-        });
-        let kept = distinct(all, wm.candidates, wm.exclusion_cells, |(p, _)| (p.x, p.y));
+        let kept = coarse.search(&signals, &wm);
+        // The fine correlation searches a coarse cell either way around a rescored place.
+        let radius = coarse.factor() as i64;
         tracing::debug!(
-            best = kept.first().map(|(p, _)| p.score),
+            best = kept.first().map(|p| p.score),
             candidates = kept.len(),
             ms = t.elapsed().as_secs_f64() * 1e3,
             "whole-map correlation of a virtual frame"
@@ -942,20 +964,24 @@ impl AbsLocalizer {
         } else {
             0.0
         };
-        let principal = (self.camera.cx, self.camera.cy);
         kept.into_iter()
-            .flat_map(|(p, i)| {
-                let (angle, normalised, ..) = &views[i];
-                let pc = normalised.transform.forward(principal.0, principal.1);
-                let at = ((p.x * f) as f64 + pc.0, (p.y * f) as f64 + pc.1);
+            .flat_map(|p| {
+                let angle = views[p.view].0;
+                let at = (p.at[0], p.at[1]);
+                let (x, y) = self.tiles.pixel_to_world(at.0, at.1);
+                tracing::trace!(
+                    x,
+                    y,
+                    heading_deg = angle.to_degrees(),
+                    score = p.score,
+                    "whole-map coarse candidate"
+                );
                 let turns: &[f64] = if third > 0.0 {
                     &[0.0, -1.0, 1.0]
                 } else {
                     &[0.0]
                 };
-                turns
-                    .iter()
-                    .map(move |t| (angle + t * third, at, 2 * f as i64))
+                turns.iter().map(move |t| (angle + t * third, at, radius))
             })
             .collect()
     }
@@ -1328,6 +1354,15 @@ struct Placement {
     /// Map pixel of the correlation window's corner.
     window: [i64; 2],
     valid: Vec<bool>,
+}
+
+/// An image's grey levels as a grid.
+fn intensity(image: &GrayImage) -> Grid {
+    Grid {
+        width: image.width() as usize,
+        height: image.height() as usize,
+        data: image.as_raw().iter().map(|&p| p as f32).collect(),
+    }
 }
 
 /// How the search reads the frame: its lens (none for a virtual frame, an ideal pinhole)

@@ -34,14 +34,19 @@ pub struct WholeMapConfig {
     pub candidates: usize,
     /// Two placements closer than this many coarse cells are one place (the better kept).
     pub exclusion_cells: usize,
-    /// Coarse placements kept per heading before the placements of all headings are ranked.
+    /// Coarse placements kept per heading and per signal before all are rescored at twice the
+    /// resolution ([`crate::coarse_places`]). On three 2 km flights the true place was among
+    /// the 64 best of its heading where it was not among the 8 best of all headings.
     pub per_heading: usize,
+    /// The rescoring moves each placement by up to this many half-size cells either way.
+    pub rescore_cells: usize,
     /// A whole-map placement is a fix only with at least this confidence (SSIM ×
-    /// correlation; a local search needs `min_confidence`, 0.07): it is the best of 10⁵
-    /// times more placements, so a wrong place scores higher too. On 2 km maps at 10 m
-    /// three whole-map searches in a row placed a crater flight's views 543 m off at w
-    /// 0.07–0.08, consistently enough to make its first alignment; right placements had w
-    /// 0.19–0.47 on the flights measured (`docs/absloc.md`).
+    /// correlation), and with at least the local search's `min_confidence`. It is the best of
+    /// 10⁵ times more placements than a local search's, so a wrong place scores higher too:
+    /// on 2 km maps at 10 m wrong places scored up to w 0.11, right ones under a sun 150–180°
+    /// from the map's 0.10–0.15. The fusion makes the difference (JointLoc's
+    /// `first_fix_span_m`: weak whole-map fixes make a first alignment only when they lie
+    /// far apart), so this gate is the local one by default (`docs/absloc.md`).
     pub min_confidence: f64,
 }
 
@@ -51,8 +56,9 @@ impl Default for WholeMapConfig {
             coarse_view_px: 24,
             candidates: 8,
             exclusion_cells: 3,
-            per_heading: 8,
-            min_confidence: 0.15,
+            per_heading: 64,
+            rescore_cells: 2,
+            min_confidence: 0.07,
         }
     }
 }
@@ -97,50 +103,9 @@ struct Plans {
 
 impl CoarseMap {
     /// Pools `map`'s gradient magnitude (after a Gaussian of `smoothing_px`) into cells of
-    /// `factor` pixels, in bands of rows so that the full-resolution gradient of a large map is
-    /// never held whole. `None` when the map has fewer than 2 × 2 cells.
+    /// `factor` pixels ([`pool_map`]). `None` when the map has fewer than 2 × 2 cells.
     pub fn new(map: &GrayImage, factor: usize, smoothing_px: f64) -> Option<Self> {
-        let factor = factor.max(1);
-        let (w, h) = (map.width() as usize, map.height() as usize);
-        let (cw, ch) = (w / factor, h / factor);
-        if cw < 2 || ch < 2 {
-            return None;
-        }
-        // Enough rows of margin for the Gaussian (3σ) and the central difference.
-        let margin = (3.0 * smoothing_px).ceil() as usize + 1;
-        let rows: Vec<Vec<f32>> = (0..ch)
-            .into_par_iter()
-            .map(|cy| {
-                let y0 = (cy * factor).saturating_sub(margin);
-                let y1 = ((cy + 1) * factor + margin).min(h);
-                let band = Grid {
-                    width: w,
-                    height: y1 - y0,
-                    data: (y0..y1)
-                        .flat_map(|y| (0..w).map(move |x| (x, y)))
-                        .map(|(x, y)| map.get_pixel(x as u32, y as u32)[0] as f32)
-                        .collect(),
-                }
-                .gradient_magnitude(smoothing_px);
-                let top = cy * factor - y0;
-                (0..cw)
-                    .map(|cx| {
-                        let mut sum = 0f32;
-                        for y in top..top + factor {
-                            let row = &band.data[y * w + cx * factor..][..factor];
-                            sum += row.iter().sum::<f32>();
-                        }
-                        sum / (factor * factor) as f32
-                    })
-                    .collect()
-            })
-            .collect();
-        let grid = Grid {
-            width: cw,
-            height: ch,
-            data: rows.into_iter().flatten().collect(),
-        };
-        Some(Self::from_grid(grid, factor))
+        pool_map(map, factor, Some(smoothing_px)).map(|grid| Self::from_grid(grid, factor))
     }
 
     /// A coarse map from an already pooled grid (`factor` is what each cell stands for).
@@ -303,6 +268,56 @@ fn smooth_size(len: usize) -> usize {
             m == 1
         })
         .expect("a 5-smooth number exists above any length")
+}
+
+/// `map` pooled into cells of `factor` pixels: its gradient magnitude after a Gaussian of
+/// `smoothing_px` when given, else its grey levels. In bands of rows, so that the
+/// full-resolution gradient of a large map is never held whole. `None` when the map has fewer
+/// than 2 × 2 cells.
+pub fn pool_map(map: &GrayImage, factor: usize, smoothing_px: Option<f64>) -> Option<Grid> {
+    let factor = factor.max(1);
+    let (w, h) = (map.width() as usize, map.height() as usize);
+    let (cw, ch) = (w / factor, h / factor);
+    if cw < 2 || ch < 2 {
+        return None;
+    }
+    // Enough rows of margin for the Gaussian (3σ) and the central difference.
+    let margin = smoothing_px.map_or(0, |s| (3.0 * s).ceil() as usize + 1);
+    let rows: Vec<Vec<f32>> = (0..ch)
+        .into_par_iter()
+        .map(|cy| {
+            let y0 = (cy * factor).saturating_sub(margin);
+            let y1 = ((cy + 1) * factor + margin).min(h);
+            let band = Grid {
+                width: w,
+                height: y1 - y0,
+                data: (y0..y1)
+                    .flat_map(|y| (0..w).map(move |x| (x, y)))
+                    .map(|(x, y)| map.get_pixel(x as u32, y as u32)[0] as f32)
+                    .collect(),
+            };
+            let band = match smoothing_px {
+                Some(s) => band.gradient_magnitude(s),
+                None => band,
+            };
+            let top = cy * factor - y0;
+            (0..cw)
+                .map(|cx| {
+                    let mut sum = 0f32;
+                    for y in top..top + factor {
+                        let row = &band.data[y * w + cx * factor..][..factor];
+                        sum += row.iter().sum::<f32>();
+                    }
+                    sum / (factor * factor) as f32
+                })
+                .collect()
+        })
+        .collect();
+    Some(Grid {
+        width: cw,
+        height: ch,
+        data: rows.into_iter().flatten().collect(),
+    })
 }
 
 /// `fine` (a view's gradient magnitude, valid where `valid`) pooled into `factor`-pixel cells;

@@ -3,7 +3,7 @@
 //! correlation around a prior a few metres off and with the heading 1.5° off: the fix is
 //! the map point under the principal point, the heading is refined; too far a prior gives a
 //! failure, never a wrong fix. With no prior the whole map is searched, coarse to fine, over
-//! all headings: the strip is found, a view of another map is not placed.
+//! all headings: the strip is found, a view of another map is not placed with confidence.
 
 mod common;
 
@@ -109,11 +109,17 @@ fn with_no_prior_the_whole_map_is_searched_and_too_little_ground_is_refused() {
             - std::f64::consts::PI;
         assert!(turn.abs() < 0.6f64.to_radians(), "seed {seed}: {turn} rad");
 
-        // The same view against another map: nothing there to find, so no fix.
+        assert!(fix.confidence >= 0.15, "seed {seed}: w {}", fix.confidence);
+
+        // The same view against another map: nothing there to find, so no fix, or a weak one
+        // (below the 0.15 at which JointLoc aligns on whole-map fixes of any span).
         let mut other = localizer(seed + 100);
         match other.localize_view(&view, &Prior::default()).unwrap() {
             Outcome::Failed(f) => assert!(f.global, "{f:?}"),
-            Outcome::Fix(f) => panic!("seed {seed}: a fix on another map: {f:?}"),
+            Outcome::Fix(f) => assert!(
+                f.global && f.confidence < 0.15,
+                "seed {seed}: a strong fix on another map: {f:?}"
+            ),
         }
     }
     // The whole-map search turned off: no prior, no fix.

@@ -38,13 +38,49 @@ fn a_10_m_flight_over_a_25_cm_map_is_localised_through_virtual_frames() {
     let start = format!("{:.2},{:.2}", start[0], start[1]);
     check(&data, &dir.path().join("out"), Some(&start));
     check(&data, &dir.path().join("out-no-start"), None);
+    check_span(&data, dir.path());
 }
 
-/// `jointloc run --sequential` (ORB, `--start` if given) through virtual frames: most
-/// virtual frames give a fix, most fixes lie within 1 m of the ground point they measure,
-/// half the frames or more get a world pose, online APE < 0.6 m.
-fn check(data: &std::path::Path, out: &std::path::Path, start: Option<&str>) {
+/// Whole-map fixes all taken as weak (`strong_fix_confidence = 1`): the first alignment waits
+/// until its fixes lie `first_fix_span_m` = 20 m apart, so the flight has covered at least
+/// that much ground (less the fixes' errors) between the first fix and the first world pose,
+/// and what it then reports is right.
+fn check_span(data: &std::path::Path, dir: &std::path::Path) {
+    let config = dir.join("weak.toml");
+    std::fs::write(&config, "strong_fix_confidence = 1.0\n").unwrap();
+    let out = dir.join("out-span");
+    let stdout = run_sequential(data, &out, &["--config", s(&config)]);
     let gt = poses(&data.join("uav/gt.txt"));
+    let first_pose = *poses(&out.join("trajectory.tum"))
+        .keys()
+        .next()
+        .expect("a world pose");
+    let first_fix = std::fs::read_to_string(out.join("fixes.txt"))
+        .unwrap()
+        .lines()
+        .filter(|l| !l.starts_with('#'))
+        .map(|l| l.split_whitespace().collect::<Vec<_>>())
+        .find(|v| v[13] == "1")
+        .map(|v| (v[0].parse::<f64>().unwrap() * 1e6).round() as i64)
+        .expect("a fix used");
+    let track: Vec<&[f64; 3]> = gt.range(first_fix..=first_pose).map(|(_, p)| p).collect();
+    let covered: f64 = track
+        .windows(2)
+        .map(|w| (w[1][0] - w[0][0]).hypot(w[1][1] - w[0][1]))
+        .sum();
+    let online = summary(&out)["ape_translation"]["rmse"].as_f64().unwrap();
+    eprintln!(
+        "weak fixes only: {covered:.1} m flown from the first fix to the first world pose, online APE {online:.3} m"
+    );
+    assert!(
+        covered >= 18.0,
+        "{covered} m between the first fix and the first world pose"
+    );
+    assert!(online < 0.6, "online APE {online}\n{stdout}");
+}
+
+/// `jointloc run --sequential` through virtual frames with `extra` arguments; its stdout.
+fn run_sequential(data: &std::path::Path, out: &std::path::Path, extra: &[&str]) -> String {
     // The matcher only makes the tile features here: virtual frames are correlated.
     let mut args = vec![
         "run",
@@ -56,9 +92,7 @@ fn check(data: &std::path::Path, out: &std::path::Path, start: Option<&str>) {
         "--out",
         s(out),
     ];
-    if let Some(start) = start {
-        args.extend(["--start", start]);
-    }
+    args.extend(extra);
     let run = jointloc(&args);
     let stdout = String::from_utf8_lossy(&run.stdout).to_string();
     assert!(
@@ -66,6 +100,18 @@ fn check(data: &std::path::Path, out: &std::path::Path, start: Option<&str>) {
         "{stdout}\n{}",
         String::from_utf8_lossy(&run.stderr)
     );
+    stdout
+}
+
+/// `jointloc run --sequential` (ORB, `--start` if given) through virtual frames: most
+/// virtual frames give a fix, most fixes lie within 1 m of the ground point they measure,
+/// half the frames or more get a world pose, online APE < 0.6 m.
+fn check(data: &std::path::Path, out: &std::path::Path, start: Option<&str>) {
+    let gt = poses(&data.join("uav/gt.txt"));
+    let stdout = match start {
+        Some(start) => run_sequential(data, out, &["--start", start]),
+        None => run_sequential(data, out, &[]),
+    };
     let sm = summary(out);
     // Without a take-off position the first fix comes from a search of the whole map.
     assert_eq!(

@@ -131,6 +131,17 @@ pub fn fit(
     })
 }
 
+/// The largest distance between two of `points`, metres (0 for fewer than two).
+pub fn spread_m(points: &[[f64; 2]]) -> f64 {
+    let mut best = 0f64;
+    for (i, a) in points.iter().enumerate() {
+        for b in &points[i + 1..] {
+            best = best.max((a[0] - b[0]).hypot(a[1] - b[1]));
+        }
+    }
+    best
+}
+
 fn weighted_fit(pairs: &[Correspondence], keep: Option<&[bool]>) -> Option<Sim3> {
     let chosen: Vec<&Correspondence> = pairs
         .iter()
@@ -261,5 +272,13 @@ mod tests {
         assert!(fit(&p[..4], 50, 3, 0).is_none());
         assert!(fit(&p[..4], 50, 2, 0).is_some());
         assert!(fit(&[], 50, 2, 0).is_none());
+    }
+
+    #[test]
+    fn the_spread_is_the_largest_distance_between_two_points() {
+        assert_eq!(spread_m(&[]), 0.0);
+        assert_eq!(spread_m(&[[3.0, 4.0]]), 0.0);
+        let d = spread_m(&[[0.0, 0.0], [3.0, 4.0], [1.0, 1.0], [-3.0, 0.0]]);
+        assert!((d - (36.0f64 + 16.0).sqrt()).abs() < 1e-12);
     }
 }

@@ -46,6 +46,11 @@ impl FixSource for AbsLocalizer {
             zoom: request.zoom,
             valid: request.valid,
         };
+        tracing::debug!(
+            frame = request.frame,
+            timestamp = request.timestamp,
+            "absolute localisation request"
+        );
         let outcome = self.localize_view(&view, request.prior)?;
         Ok(Some(Located {
             outcome,

@@ -120,6 +120,9 @@ impl JointLoc {
         let Some(fitted) = fitted else {
             return;
         };
+        if self.alignment.is_none() && !self.first_alignment_spans(&fitted) {
+            return;
+        }
         for r in &mut self.fixes {
             r.inlier = false;
         }
@@ -156,6 +159,40 @@ impl JointLoc {
         if self.merge_earlier_maps(false) {
             self.refit();
         }
+    }
+
+    /// Whether a first alignment may rest on `fitted`'s inlier fixes: always, unless one of
+    /// them is a weak whole-map fix of a virtual frame (`first_fix_span_m`); then only when
+    /// they lie far enough apart to have seen different ground.
+    fn first_alignment_spans(&self, fitted: &SlamToWorld) -> bool {
+        let c = &self.config;
+        let weak = |i: &usize| {
+            let r = &self.fixes[self.ties[*i].record];
+            r.global && r.confidence < c.strong_fix_confidence
+        };
+        if c.first_fix_span_m <= 0.0
+            || !self.virtual_frames.in_use()
+            || !fitted.inlier_fixes.iter().any(weak)
+        {
+            return true;
+        }
+        let points: Vec<[f64; 2]> = fitted
+            .inlier_fixes
+            .iter()
+            .map(|&i| {
+                let p = &self.ties[i].world_ground;
+                [p.x, p.y]
+            })
+            .collect();
+        let span = alignment::spread_m(&points);
+        if span < c.first_fix_span_m {
+            tracing::debug!(
+                span,
+                fixes = points.len(),
+                "first alignment held back: weak whole-map fixes too close together"
+            );
+        }
+        span >= c.first_fix_span_m
     }
 
     /// Where the window's map points sit on the elevation model through the new alignment:
