@@ -14,12 +14,14 @@
 //!    each heading and each signal are kept (a few thousand);
 //! 2. each is rescored at cells of `factor / 2` (four times as many cells in the view) by the
 //!    sum of both signals' masked NCC, moved by up to [`WholeMapConfig::rescore_cells`]
-//!    half-cells, directly (a few thousand small sums, not another FFT);
+//!    half-cells and turned to the neighbouring headings, directly (a few thousand small
+//!    sums, not another FFT);
 //! 3. the best distinct places go to the fine correlation.
 //!
-//! Measured offline on dumps of 23 whole-map searches of four flights (suns 31°, 156°, 172°
-//! and 173° apart): where the old ranking had the true place among its 8 in 3 searches, the
-//! rescored one has it first in 14 (`docs/absloc.md`).
+//! On four 2 km flights at 10 m (suns 31–173° apart) the true place was among the 8 places of
+//! the gradient alone in 3 of 109 whole-map searches, all on the flight under the close sun;
+//! rescored, it was among the 8 in 20 of the 33 searches logged on the two flights under
+//! suns 160° and 156° apart, first in 15 (`docs/absloc.md` §"With no prior").
 
 use rayon::prelude::*;
 
@@ -317,7 +319,7 @@ mod tests {
         let (scores, pw, _) = coarse.ncc(&view, &valid).unwrap();
         for (x, y) in [(0, 0), (24, 15), (11, 7)] {
             let direct = masked.ncc_at(&map, x, y).unwrap();
-            assert!((direct - scores[y as usize * pw + x as usize]).abs() < 1e-9);
+            assert!((direct - scores[y as usize * pw + x as usize]).abs() < 1e-4);
         }
         assert!(masked.ncc_at(&map, 25, 0).is_none());
         assert!(masked.ncc_at(&map, -1, 0).is_none());

@@ -112,12 +112,12 @@ fn with_no_prior_the_whole_map_is_searched_and_too_little_ground_is_refused() {
         assert!(fix.confidence >= 0.15, "seed {seed}: w {}", fix.confidence);
 
         // The same view against another map: nothing there to find, so no fix, or a weak one
-        // (below the 0.15 at which JointLoc aligns on whole-map fixes of any span).
+        // (below the 0.25 at which JointLoc aligns on whole-map fixes of any span).
         let mut other = localizer(seed + 100);
         match other.localize_view(&view, &Prior::default()).unwrap() {
             Outcome::Failed(f) => assert!(f.global, "{f:?}"),
             Outcome::Fix(f) => assert!(
-                f.global && f.confidence < 0.15,
+                f.global && f.confidence < 0.25,
                 "seed {seed}: a strong fix on another map: {f:?}"
             ),
         }

@@ -105,7 +105,7 @@ fn run_sequential(data: &std::path::Path, out: &std::path::Path, extra: &[&str])
 
 /// `jointloc run --sequential` (ORB, `--start` if given) through virtual frames: most
 /// virtual frames give a fix, most fixes lie within 1 m of the ground point they measure,
-/// half the frames or more get a world pose, online APE < 0.6 m.
+/// half the frames or more get a world pose (a quarter without a start), online APE < 0.6 m.
 fn check(data: &std::path::Path, out: &std::path::Path, start: Option<&str>) {
     let gt = poses(&data.join("uav/gt.txt"));
     let stdout = match start {
@@ -172,6 +172,14 @@ fn check(data: &std::path::Path, out: &std::path::Path, start: Option<&str>) {
          within 1 m, {world} world poses of {}, online APE {online:.3} m",
         gt.len()
     );
-    assert!(world * 2 >= gt.len(), "{world} world poses of {}", gt.len());
+    // Without a start the fixes of this flight (w 0.19–0.25, sun 90° from the map's) are
+    // weak whole-map fixes: the first alignment waits for 20 m between them (`check_span`),
+    // 30 of the 60 s.
+    let quarters = if start.is_some() { 2 } else { 1 };
+    assert!(
+        world * 4 >= gt.len() * quarters,
+        "{world} world poses of {}",
+        gt.len()
+    );
     assert!(online < 0.6, "online APE {online}\n{stdout}");
 }

@@ -104,12 +104,12 @@ pub struct JointLocConfig {
     /// this far apart, metres (0: no such rule). Successive virtual frames share most of
     /// their ground, so a wrong place that matches one matches the next few too: on a 2 km
     /// crater flight three in a row put the views 945 m off at w 0.08–0.10, 6 m apart, while
-    /// the right place, under a sun 173° from the map's, scored w 0.10–0.15
+    /// the right place, under a sun 160° from the map's, scored w 0.10–0.15
     /// (`docs/absloc.md` §"With no prior"). 20 m of new ground is 40 % of a virtual frame.
     pub first_fix_span_m: f64,
     /// See `first_fix_span_m`: whole-map fixes of virtual frames at or above this confidence
-    /// may make the first alignment at any span (no wrong one has scored above 0.11 on the
-    /// flights measured).
+    /// may make the first alignment at any span. Wrong whole-map fixes have scored up to
+    /// w 0.19 on the flights measured, right ones under a near sun 0.37–0.50.
     pub strong_fix_confidence: f64,
     /// Seed of the alignment RANSAC.
     pub seed: u64,
@@ -149,7 +149,7 @@ impl Default for JointLocConfig {
             dead_reckoning_max_s: 20.0,
             max_altitude_rate_mps: 15.0,
             first_fix_span_m: 20.0,
-            strong_fix_confidence: 0.15,
+            strong_fix_confidence: 0.25,
             seed: 0,
             slam: SystemConfig::default(),
             absloc: AbsLocConfig::default(),
