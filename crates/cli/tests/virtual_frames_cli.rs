@@ -39,6 +39,42 @@ fn a_10_m_flight_over_a_25_cm_map_is_localised_through_virtual_frames() {
     check(&data, &dir.path().join("out"), Some(&start));
     check(&data, &dir.path().join("out-no-start"), None);
     check_span(&data, dir.path());
+    check_confirmation(&data, dir.path());
+}
+
+/// Whole-map fixes all taken as strong (`strong_fix_confidence = 0.1`, under this flight's
+/// w 0.19–0.25): after the first one the next virtual frames are searched around it, so one
+/// whole-map search gives a fix, and the world poses start within three fixes of it.
+fn check_confirmation(data: &std::path::Path, dir: &std::path::Path) {
+    let config = dir.join("strong.toml");
+    std::fs::write(&config, "strong_fix_confidence = 0.1\n").unwrap();
+    let out = dir.join("out-strong");
+    let args = ["--config", s(&config), "--log", "jointloc_absloc=info"];
+    let (_, stderr) = run_sequential(data, &out, &args);
+    let whole_map_fixes = stderr
+        .matches("whole-map search of a virtual frame: fix")
+        .count();
+    let sm = summary(&out);
+    let first_fix = std::fs::read_to_string(out.join("fixes.txt"))
+        .unwrap()
+        .lines()
+        .filter(|l| !l.starts_with('#'))
+        .map(|l| l.split_whitespace().collect::<Vec<_>>())
+        .find(|v| v[13] == "1")
+        .map(|v| (v[0].parse::<f64>().unwrap() * 5.0).round() as u64)
+        .expect("a fix used");
+    let geo = sm["geo_referenced_from"].as_u64().expect("a world pose");
+    let online = sm["ape_translation"]["rmse"].as_f64().unwrap();
+    eprintln!(
+        "strong fixes: {whole_map_fixes} whole-map fix(es), first fix at frame {first_fix}, \
+         world poses from frame {geo}, online APE {online:.3} m"
+    );
+    assert_eq!(whole_map_fixes, 1, "{stderr}");
+    assert!(
+        geo <= first_fix + 30,
+        "first fix {first_fix}, world poses from {geo}"
+    );
+    assert!(online < 0.6, "online APE {online}");
 }
 
 /// Whole-map fixes all taken as weak (`strong_fix_confidence = 1`): the first alignment waits
@@ -49,7 +85,7 @@ fn check_span(data: &std::path::Path, dir: &std::path::Path) {
     let config = dir.join("weak.toml");
     std::fs::write(&config, "strong_fix_confidence = 1.0\n").unwrap();
     let out = dir.join("out-span");
-    let stdout = run_sequential(data, &out, &["--config", s(&config)]);
+    let (stdout, _) = run_sequential(data, &out, &["--config", s(&config)]);
     let gt = poses(&data.join("uav/gt.txt"));
     let first_pose = *poses(&out.join("trajectory.tum"))
         .keys()
@@ -79,8 +115,13 @@ fn check_span(data: &std::path::Path, dir: &std::path::Path) {
     assert!(online < 0.6, "online APE {online}\n{stdout}");
 }
 
-/// `jointloc run --sequential` through virtual frames with `extra` arguments; its stdout.
-fn run_sequential(data: &std::path::Path, out: &std::path::Path, extra: &[&str]) -> String {
+/// `jointloc run --sequential` through virtual frames with `extra` arguments; its stdout and
+/// stderr.
+fn run_sequential(
+    data: &std::path::Path,
+    out: &std::path::Path,
+    extra: &[&str],
+) -> (String, String) {
     // The matcher only makes the tile features here: virtual frames are correlated.
     let mut args = vec![
         "run",
@@ -95,12 +136,9 @@ fn run_sequential(data: &std::path::Path, out: &std::path::Path, extra: &[&str])
     args.extend(extra);
     let run = jointloc(&args);
     let stdout = String::from_utf8_lossy(&run.stdout).to_string();
-    assert!(
-        run.status.success(),
-        "{stdout}\n{}",
-        String::from_utf8_lossy(&run.stderr)
-    );
-    stdout
+    let stderr = String::from_utf8_lossy(&run.stderr).to_string();
+    assert!(run.status.success(), "{stdout}\n{stderr}");
+    (stdout, stderr)
 }
 
 /// `jointloc run --sequential` (ORB, `--start` if given) through virtual frames: most
@@ -108,7 +146,7 @@ fn run_sequential(data: &std::path::Path, out: &std::path::Path, extra: &[&str])
 /// half the frames or more get a world pose (a quarter without a start), online APE < 0.6 m.
 fn check(data: &std::path::Path, out: &std::path::Path, start: Option<&str>) {
     let gt = poses(&data.join("uav/gt.txt"));
-    let stdout = match start {
+    let (stdout, _) = match start {
         Some(start) => run_sequential(data, out, &["--start", start]),
         None => run_sequential(data, out, &[]),
     };

@@ -99,16 +99,18 @@ pub struct JointLocConfig {
     /// of the ground (a ledge) is accepted a fraction of a second later, the limit growing
     /// with the time since the last accepted reading.
     pub max_altitude_rate_mps: f64,
-    /// A first alignment that rests on a whole-map fix of a virtual frame (no prior at all)
-    /// with a confidence below `strong_fix_confidence` needs its inlier fixes to lie at least
-    /// this far apart, metres (0: no such rule). Successive virtual frames share most of
-    /// their ground, so a wrong place that matches one matches the next few too: on a 2 km
-    /// crater flight three in a row put the views 945 m off at w 0.08–0.10, 6 m apart, while
-    /// the right place, under a sun 160° from the map's, scored w 0.10–0.15
-    /// (`docs/absloc.md` §"With no prior"). 20 m of new ground is 40 % of a virtual frame.
+    /// Without `--start`, before the first world pose, a first alignment through virtual
+    /// frames that rests on a fix with a confidence below `strong_fix_confidence` needs its
+    /// inlier fixes to lie at least this far apart, metres (0: no such rule). Successive
+    /// virtual frames share most of their ground, so a wrong place that matches one matches
+    /// the next few too: on a 2 km crater flight three whole-map searches in a row put the
+    /// views 945 m off at w 0.08–0.10, 6 m apart, while the right place, under a sun 160°
+    /// from the map's, scored w 0.10–0.15 (`docs/absloc.md` §"Under a reversed sun"). 20 m
+    /// of new ground is 40 % of a virtual frame.
     pub first_fix_span_m: f64,
-    /// See `first_fix_span_m`: whole-map fixes of virtual frames at or above this confidence
-    /// may make the first alignment at any span. Wrong whole-map fixes have scored up to
+    /// See `first_fix_span_m`: fixes at or above this confidence may make the first
+    /// alignment at any span, and before it the virtual frame after such a fix is searched
+    /// around it rather than over the whole map. Wrong whole-map fixes have scored up to
     /// w 0.19 on the flights measured, right ones under a near sun 0.37–0.50.
     pub strong_fix_confidence: f64,
     /// Seed of the alignment RANSAC.

@@ -624,7 +624,19 @@ impl JointLoc {
 
     /// No world pose yet, no alignment and no take-off position: nothing but the fixes says
     /// where the flight is.
-    fn unanchored(&self) -> bool {
+    /// Whether the latest fix that went into the fusion has at least
+    /// [`JointLocConfig::strong_fix_confidence`]: before the first world pose, the next
+    /// virtual frame is then searched around it (a confirmation must be as strong, see
+    /// `first_fix_span_m`) instead of over the whole map.
+    fn latest_fix_strong(&self) -> bool {
+        self.fixes
+            .iter()
+            .rev()
+            .find(|r| r.used)
+            .is_some_and(|r| r.confidence >= self.config.strong_fix_confidence)
+    }
+
+    pub(crate) fn unanchored(&self) -> bool {
         self.alignment.is_none()
             && self.last_world_pose.is_none()
             && self.config.start_position.is_none()
@@ -651,7 +663,7 @@ impl JointLoc {
         timestamp: f64,
         virtual_frame: bool,
     ) -> Prior {
-        if virtual_frame && self.unanchored() {
+        if virtual_frame && self.unanchored() && !self.latest_fix_strong() {
             return Prior::default();
         }
         // Before the alignment, the provisional one is fresher than a world pose left from a

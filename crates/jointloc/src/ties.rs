@@ -161,16 +161,17 @@ impl JointLoc {
         }
     }
 
-    /// Whether a first alignment may rest on `fitted`'s inlier fixes: always, unless one of
-    /// them is a weak whole-map fix of a virtual frame (`first_fix_span_m`); then only when
-    /// they lie far enough apart to have seen different ground.
+    /// Whether a first alignment may rest on `fitted`'s inlier fixes: always, unless the
+    /// flight has had no world pose and no take-off position, flies on virtual frames, and one
+    /// of the fixes is weak (`first_fix_span_m`); then only when they lie far enough apart to
+    /// have seen different ground. Weak fixes of local searches count too: before the first
+    /// world pose a local search runs only around a strong fix, to confirm it.
     fn first_alignment_spans(&self, fitted: &SlamToWorld) -> bool {
         let c = &self.config;
-        let weak = |i: &usize| {
-            let r = &self.fixes[self.ties[*i].record];
-            r.global && r.confidence < c.strong_fix_confidence
-        };
+        let weak =
+            |i: &usize| self.fixes[self.ties[*i].record].confidence < c.strong_fix_confidence;
         if c.first_fix_span_m <= 0.0
+            || !self.unanchored()
             || !self.virtual_frames.in_use()
             || !fitted.inlier_fixes.iter().any(weak)
         {
