@@ -69,7 +69,7 @@ impl CoarsePlaces {
         let half_gradient = pool_map(map, half, Some(smoothing_px))?;
         let half_intensity = pool_map(map, half, None)?;
         let coarse = |g: &Grid| {
-            let (grid, _) = pool(g, &vec![true; g.data.len()], 2);
+            let grid = g.halved();
             (grid.width >= 2 && grid.height >= 2).then(|| CoarseMap::from_grid(grid, 2 * half))
         };
         Some(Self {
@@ -258,14 +258,8 @@ mod tests {
     }
 
     fn signals(map: &GrayImage, x0: u32, y0: u32, w: u32, h: u32, valid: &[bool]) -> ViewSignals {
-        let intensity = Grid {
-            width: w as usize,
-            height: h as usize,
-            data: (0..h)
-                .flat_map(|y| (0..w).map(move |x| (x, y)))
-                .map(|(x, y)| map.get_pixel(x0 + x, y0 + y)[0] as f32)
-                .collect(),
-        };
+        let cut = image::imageops::crop_imm(map, x0, y0, w, h).to_image();
+        let intensity = Grid::from_image(&cut);
         ViewSignals {
             gradient: intensity.gradient_magnitude(1.0),
             intensity,

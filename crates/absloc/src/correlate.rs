@@ -83,6 +83,15 @@ pub struct Grid {
 }
 
 impl Grid {
+    /// An image's grey levels.
+    pub fn from_image(image: &image::GrayImage) -> Grid {
+        Grid {
+            width: image.width() as usize,
+            height: image.height() as usize,
+            data: image.as_raw().iter().map(|&p| p as f32).collect(),
+        }
+    }
+
     fn at(&self, x: usize, y: usize) -> f32 {
         self.data[y * self.width + x]
     }
@@ -107,7 +116,7 @@ impl Grid {
     }
 
     /// 2 × 2 means (a trailing odd row or column dropped).
-    fn halved(&self) -> Grid {
+    pub(crate) fn halved(&self) -> Grid {
         let (w, h) = (self.width / 2, self.height / 2);
         let data = (0..w * h)
             .map(|i| {

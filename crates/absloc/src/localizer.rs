@@ -887,17 +887,7 @@ impl AbsLocalizer {
                     .collect()
             }
         };
-        let grid = Grid {
-            width: vw,
-            height: vh,
-            data: normalised
-                .image
-                .as_raw()
-                .iter()
-                .map(|&p| p as f32)
-                .collect(),
-        }
-        .gradient_magnitude(cfg.smoothing_px);
+        let grid = Grid::from_image(&normalised.image).gradient_magnitude(cfg.smoothing_px);
         (normalised, grid, valid)
     }
 
@@ -942,7 +932,7 @@ impl AbsLocalizer {
                 let pc = normalised.transform.forward(self.camera.cx, self.camera.cy);
                 ViewSignals {
                     gradient: gradient.clone(),
-                    intensity: intensity(&normalised.image),
+                    intensity: Grid::from_image(&normalised.image),
                     valid: valid.clone(),
                     principal: [pc.0, pc.1],
                 }
@@ -1354,15 +1344,6 @@ struct Placement {
     /// Map pixel of the correlation window's corner.
     window: [i64; 2],
     valid: Vec<bool>,
-}
-
-/// An image's grey levels as a grid.
-fn intensity(image: &GrayImage) -> Grid {
-    Grid {
-        width: image.width() as usize,
-        height: image.height() as usize,
-        data: image.as_raw().iter().map(|&p| p as f32).collect(),
-    }
 }
 
 /// How the search reads the frame: its lens (none for a virtual frame, an ideal pinhole)

@@ -72,8 +72,8 @@ pub struct CoarsePeak {
     pub y: usize,
 }
 
-/// The map's gradient magnitude pooled into `factor`-pixel cells, with the spectra of it and
-/// of its square, ready to correlate any view against.
+/// A map signal (gradient magnitude or grey levels) pooled into `factor`-pixel cells, with the
+/// spectra of it and of its square, ready to correlate any view against.
 pub struct CoarseMap {
     factor: usize,
     grid: Grid,
@@ -153,7 +153,7 @@ impl CoarseMap {
         self.factor
     }
 
-    /// The pooled gradient magnitude.
+    /// The pooled signal.
     pub fn grid(&self) -> &Grid {
         &self.grid
     }
@@ -332,7 +332,7 @@ pub fn pool_map(map: &GrayImage, factor: usize, smoothing_px: Option<f64>) -> Op
     })
 }
 
-/// `fine` (a view's gradient magnitude, valid where `valid`) pooled into `factor`-pixel cells;
+/// `fine` (a view's signal, valid where `valid`) pooled into `factor`-pixel cells;
 /// a cell is valid when every pixel in it is.
 pub fn pool(fine: &Grid, valid: &[bool], factor: usize) -> (Grid, Vec<bool>) {
     let f = factor.max(1);
@@ -554,12 +554,7 @@ mod tests {
         let image = GrayImage::from_fn(64, 48, |x, y| {
             image::Luma([(grid.data[(y * 64 + x) as usize] * 25.0) as u8])
         });
-        let whole = Grid {
-            width: 64,
-            height: 48,
-            data: image.as_raw().iter().map(|&p| p as f32).collect(),
-        }
-        .gradient_magnitude(1.0);
+        let whole = Grid::from_image(&image).gradient_magnitude(1.0);
         let (pooled, _) = pool(&whole, &vec![true; 64 * 48], 4);
         let coarse = CoarseMap::new(&image, 4, 1.0).unwrap();
         assert_eq!((coarse.grid().width, coarse.grid().height), (16, 12));

@@ -55,14 +55,8 @@ fn check_confirmation(data: &std::path::Path, dir: &std::path::Path) {
         .matches("whole-map search of a virtual frame: fix")
         .count();
     let sm = summary(&out);
-    let first_fix = std::fs::read_to_string(out.join("fixes.txt"))
-        .unwrap()
-        .lines()
-        .filter(|l| !l.starts_with('#'))
-        .map(|l| l.split_whitespace().collect::<Vec<_>>())
-        .find(|v| v[13] == "1")
-        .map(|v| (v[0].parse::<f64>().unwrap() * 5.0).round() as u64)
-        .expect("a fix used");
+    // 5 Hz camera.
+    let first_fix = (first_used_fix_s(&out) * 5.0).round() as u64;
     let geo = sm["geo_referenced_from"].as_u64().expect("a world pose");
     let online = sm["ape_translation"]["rmse"].as_f64().unwrap();
     eprintln!(
@@ -91,14 +85,7 @@ fn check_span(data: &std::path::Path, dir: &std::path::Path) {
         .keys()
         .next()
         .expect("a world pose");
-    let first_fix = std::fs::read_to_string(out.join("fixes.txt"))
-        .unwrap()
-        .lines()
-        .filter(|l| !l.starts_with('#'))
-        .map(|l| l.split_whitespace().collect::<Vec<_>>())
-        .find(|v| v[13] == "1")
-        .map(|v| (v[0].parse::<f64>().unwrap() * 1e6).round() as i64)
-        .expect("a fix used");
+    let first_fix = (first_used_fix_s(&out) * 1e6).round() as i64;
     let track: Vec<&[f64; 3]> = gt.range(first_fix..=first_pose).map(|(_, p)| p).collect();
     let covered: f64 = track
         .windows(2)
@@ -113,6 +100,18 @@ fn check_span(data: &std::path::Path, dir: &std::path::Path) {
         "{covered} m between the first fix and the first world pose"
     );
     assert!(online < 0.6, "online APE {online}\n{stdout}");
+}
+
+/// Timestamp (s) of the first fix of a run that went into the fusion (`fixes.txt` column 14).
+fn first_used_fix_s(out: &std::path::Path) -> f64 {
+    std::fs::read_to_string(out.join("fixes.txt"))
+        .unwrap()
+        .lines()
+        .filter(|l| !l.starts_with('#'))
+        .map(|l| l.split_whitespace().collect::<Vec<_>>())
+        .find(|v| v[13] == "1")
+        .map(|v| v[0].parse::<f64>().unwrap())
+        .expect("a fix used")
 }
 
 /// `jointloc run --sequential` through virtual frames with `extra` arguments; its stdout and
