@@ -4,7 +4,8 @@
 //! `r = ⌈10^(1−w)⌉`.
 //!
 //! - [`tiles`]: the map, its georeference and tile neighbourhoods;
-//! - [`cache`]: tile features on disk, keyed by detector, weights, config and map;
+//! - [`cache`], [`tile_store`]: tile features on disk, keyed by detector, weights, config and
+//!   map, read tile by tile within a memory budget;
 //! - [`warp`]: scale/rotation normalisation and homography warps (area-filtered);
 //! - [`candidate`]: one view against one tile (match, homography, checks);
 //! - [`ssim`], [`confidence`]: the confidence and the area prediction;
@@ -31,6 +32,7 @@ pub mod registry;
 pub mod search;
 pub mod shortlist;
 pub mod ssim;
+pub mod tile_store;
 pub mod tiles;
 pub mod warp;
 pub mod whole_map;
@@ -43,4 +45,5 @@ pub use localizer::{
     heading_from_rotation,
 };
 pub use pipeline::FeaturePipeline;
+pub use tile_store::TileStore;
 pub use tiles::{Ground, MapTile, MapTiles};

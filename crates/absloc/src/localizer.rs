@@ -8,7 +8,7 @@
 //! `rotation_hypotheses` angles): learned matchers are neither scale- nor rotation-invariant.
 
 use std::path::PathBuf;
-use std::sync::OnceLock;
+use std::sync::{Arc, OnceLock};
 use std::time::Instant;
 
 use image::GrayImage;
@@ -28,6 +28,7 @@ use crate::pipeline::FeaturePipeline;
 use crate::search::{self, SearchInput};
 use crate::shortlist::{ShortlistConfig, TileIndex};
 use crate::ssim::{SsimConfig, ssim_masked};
+use crate::tile_store::TileStore;
 use crate::tiles::MapTiles;
 use crate::warp::{Lens, NormalisedFrame, normalise_lens, resample, warp_into_map_lens};
 
@@ -76,8 +77,13 @@ pub struct AbsLocConfig {
     /// 1.2: 1.4× faster per fix at 200 m with the same mean accuracy, and no crop at
     /// 100 m or below (`docs/absloc.md` §"Latency per fix").
     pub max_view_over_tile: f64,
-    /// Tile feature cache on disk (see [`crate::cache`]).
+    /// Tile feature cache on disk (see [`crate::cache`]). Off, every tile's features are
+    /// extracted at the first search that needs them and all kept in memory.
     pub cache: bool,
+    /// Memory for tile features read from the cache, MB (least recently used out first,
+    /// [`crate::tile_store`]): a local search needs a few tiles, a whole-map search streams the
+    /// file. A 2 km map at 25 cm/px holds ≈ 0.5 GB of XFeat tile features.
+    pub tile_memory_mb: usize,
     /// Cache folder; default `<map folder>/jointloc-cache`.
     pub cache_dir: Option<PathBuf>,
     /// Acceptance rules per tile.
@@ -108,6 +114,7 @@ impl Default for AbsLocConfig {
             min_match_scale: 0.4,
             max_view_over_tile: 1.2,
             cache: true,
+            tile_memory_mb: 128,
             cache_dir: None,
             accept: AcceptConfig::default(),
             homography: HomographyConfig::default(),
@@ -317,8 +324,9 @@ pub struct AbsLocalizer {
     camera: PinholeCamera,
     pipeline: FeaturePipeline,
     config: AbsLocConfig,
-    tile_features: Vec<jointloc_features::Features>,
-    cache_status: CacheStatus,
+    /// The tile features, opened (or extracted and cached) by the first search that matches
+    /// features: virtual frames, registered by correlation, never need them.
+    store: Option<Arc<TileStore>>,
     state: SearchState,
     /// Map upsampling chosen at the first frame (1: none), see
     /// [`AbsLocConfig::min_match_scale`].
@@ -332,8 +340,9 @@ pub struct AbsLocalizer {
 }
 
 impl AbsLocalizer {
-    /// Prepares the search: checks that the frame size equals the tile size and loads (or
-    /// extracts and caches) the tile features.
+    /// Prepares the search: checks the configuration and that the frame size equals the tile
+    /// size. The tile features are opened (or extracted and cached) when first needed, or by
+    /// [`Self::prepare`].
     pub fn new(
         tiles: MapTiles,
         camera: PinholeCamera,
@@ -349,14 +358,12 @@ impl AbsLocalizer {
                 reason: "focal lengths must be finite and > 0".into(),
             });
         }
-        let loaded = tile_features(&tiles, &pipeline, &config, &pipeline.detector_id)?;
         Ok(Self {
             tiles,
             camera,
             pipeline,
             config,
-            tile_features: loaded.features,
-            cache_status: loaded.status,
+            store: None,
             state: SearchState {
                 radius: RADIUS_RANGE.1,
                 ..Default::default()
@@ -382,8 +389,6 @@ impl AbsLocalizer {
         let t = Instant::now();
         // The paper's tiling: frame-size tiles overlapping by half.
         let tiles = self.tiles.upsampled(factor, 0.5)?;
-        let id = format!("{}-up{factor:.2}", self.pipeline.detector_id);
-        let loaded = tile_features(&tiles, &self.pipeline, &self.config, &id)?;
         tracing::info!(
             factor,
             gsd_m = tiles.gsd_m(),
@@ -392,8 +397,7 @@ impl AbsLocalizer {
             "coarse map upsampled for matching"
         );
         self.tiles = tiles;
-        self.tile_features = loaded.features;
-        self.cache_status = loaded.status;
+        self.store = None;
         self.upsample = Some(factor);
         self.shortlist = OnceLock::new();
         self.coarse_map = OnceLock::new();
@@ -421,14 +425,59 @@ impl AbsLocalizer {
         &self.pipeline
     }
 
-    /// How the tile features were obtained.
-    pub fn cache_status(&self) -> CacheStatus {
-        self.cache_status
+    /// How the tile features were obtained; `None` before they were first needed.
+    pub fn cache_status(&self) -> Option<CacheStatus> {
+        self.store.as_ref().map(|s| s.status())
     }
 
-    /// Features of every tile (tile pixels).
-    pub fn tile_features(&self) -> &[jointloc_features::Features] {
-        &self.tile_features
+    /// The tile features; `None` before they were first needed.
+    pub fn tile_store(&self) -> Option<&TileStore> {
+        self.store.as_deref()
+    }
+
+    /// Upsamples the map as a frame at `altitude` needs (see
+    /// [`AbsLocConfig::min_match_scale`]) and opens, or extracts and caches, its tile features
+    /// now rather than at the first search.
+    pub fn prepare(&mut self, altitude: f64) -> Result<CacheStatus> {
+        if !(altitude.is_finite() && altitude > 0.0) {
+            return Err(AbslocError::InvalidAltitude { value: altitude });
+        }
+        self.adapt_map_scale(altitude)?;
+        Ok(self.ensure_store()?.status())
+    }
+
+    /// The tile features of the map in use, opened on first use.
+    fn ensure_store(&mut self) -> Result<Arc<TileStore>> {
+        if let Some(s) = &self.store {
+            return Ok(s.clone());
+        }
+        let id = match self.upsample {
+            Some(f) if f != 1.0 => format!("{}-up{f:.2}", self.pipeline.detector_id),
+            _ => self.pipeline.detector_id.clone(),
+        };
+        let t = Instant::now();
+        let key = cache::cache_key(&self.tiles, &self.pipeline.detector_key);
+        let path = self
+            .config
+            .cache
+            .then(|| cache::cache_path(&self.tiles, self.config.cache_dir.as_deref(), &id));
+        let store = Arc::new(TileStore::open(
+            &self.tiles,
+            self.pipeline.detector.clone(),
+            &key,
+            path.as_deref(),
+            self.config.tile_memory_mb.saturating_mul(1 << 20),
+        )?);
+        tracing::info!(
+            tiles = self.tiles.len(),
+            status = ?store.status(),
+            matcher = %self.pipeline.name,
+            seconds = t.elapsed().as_secs_f64(),
+            "tile features ready"
+        );
+        self.shortlist = OnceLock::new();
+        self.store = Some(store.clone());
+        Ok(store)
     }
 
     /// Forgets the last tile, radius and heading (the next search is global).
@@ -516,6 +565,7 @@ impl AbsLocalizer {
             tracing::debug!(std, "frame without texture: no fix");
             return Ok(self.fail(FailureReason::Textureless { std }, 0, false, start));
         }
+        let store = self.ensure_store()?;
         let expected = self.expected_scale(altitude);
         // A masked frame is a virtual one, an ideal pinhole.
         let ctx = ViewContext {
@@ -583,6 +633,7 @@ impl AbsLocalizer {
         let mut found = None;
         for tiles in passes.iter().filter(|p| !p.is_empty()) {
             found = self.search(
+                &store,
                 frame,
                 &ctx,
                 tiles,
@@ -618,6 +669,7 @@ impl AbsLocalizer {
                 "local search failed: global search"
             );
             found = self.search(
+                &store,
                 frame,
                 &ctx,
                 &all,
@@ -634,6 +686,7 @@ impl AbsLocalizer {
         }
         let found = match found {
             Some(best) if shortlisted => Some(self.refine(
+                &store,
                 frame,
                 (&ctx, scale, expected),
                 best,
@@ -1024,8 +1077,10 @@ impl AbsLocalizer {
     /// After a shortlisted whole-map search: the best pair's view matched against the other
     /// tiles that contain its fix, as a local search would, since the shortlist's first
     /// decisive tile may hold the frame near its edge. The most inliers win.
+    #[allow(clippy::too_many_arguments)]
     fn refine(
         &self,
+        store: &TileStore,
         frame: &GrayImage,
         (ctx, scale, expected): (&ViewContext<'_>, f64, f64),
         best: Candidate,
@@ -1048,6 +1103,7 @@ impl AbsLocalizer {
         let angle = views[best.view].0;
         let mut rejection = None;
         let refined = self.search(
+            store,
             frame,
             ctx,
             &others,
@@ -1075,6 +1131,7 @@ impl AbsLocalizer {
     #[allow(clippy::too_many_arguments)]
     fn search(
         &self,
+        store: &TileStore,
         frame: &GrayImage,
         ctx: &ViewContext<'_>,
         tiles: &[usize],
@@ -1121,7 +1178,7 @@ impl AbsLocalizer {
         }
         let input = SearchInput {
             tiles: &self.tiles,
-            tile_features: &self.tile_features,
+            store,
             ctx: MatchContext {
                 matcher: self.pipeline.matcher.as_ref(),
                 homography: &self.config.homography,
@@ -1141,10 +1198,11 @@ impl AbsLocalizer {
         let keep = self.config.shortlist.candidates;
         if rank && keep > 0 && jobs.len() > keep {
             let t = Instant::now();
-            let index = self
-                .shortlist
-                .get_or_init(|| TileIndex::build(&self.tile_features, &self.config.shortlist));
-            if let Some(index) = index {
+            if self.shortlist.get().is_none() {
+                let built = TileIndex::build(store, &self.tiles, &self.config.shortlist)?;
+                let _ = self.shortlist.set(built);
+            }
+            if let Some(index) = self.shortlist.get().and_then(Option::as_ref) {
                 let vlads: Vec<(usize, Vec<f32>)> = view_ids
                     .iter()
                     .map(|&v| (v, index.vlad(&view_refs[v].features)))
@@ -1160,7 +1218,7 @@ impl AbsLocalizer {
                     .min_by(|a, b| (a.0 * a.1).total_cmp(&(b.0 * b.1)))
                     .unwrap_or((1.0, 1.0));
                 let pairs = jobs.len();
-                jobs = index.rank(&self.tile_features, &vlads, window, tiles, keep);
+                jobs = index.rank(store, &self.tiles, &vlads, window, tiles, keep)?;
                 tracing::debug!(
                     pairs,
                     kept = jobs.len(),
@@ -1435,27 +1493,6 @@ fn grey_std(img: &GrayImage) -> f64 {
 fn angle_eq(a: f64, b: f64) -> bool {
     let d = (a - b).rem_euclid(std::f64::consts::TAU);
     d < 1e-9 || std::f64::consts::TAU - d < 1e-9
-}
-
-/// Tile features of `tiles` from the cache (`id` names the cache file) or extracted.
-fn tile_features(
-    tiles: &MapTiles,
-    pipeline: &FeaturePipeline,
-    config: &AbsLocConfig,
-    id: &str,
-) -> Result<cache::TileFeatures> {
-    let key = cache::cache_key(tiles, &pipeline.detector_key);
-    let path = config
-        .cache
-        .then(|| cache::cache_path(tiles, config.cache_dir.as_deref(), id));
-    let loaded = cache::load_or_build(tiles, pipeline.detector.as_ref(), &key, path.as_deref())?;
-    tracing::info!(
-        tiles = tiles.len(),
-        status = ?loaded.status,
-        matcher = %pipeline.name,
-        "tile features ready"
-    );
-    Ok(loaded)
 }
 
 /// How much to upsample a map whose frame-to-map scale is `expected` so that it becomes

@@ -8,19 +8,19 @@
 //! tile), the remaining, farther candidates are skipped; the most inliers among those matched
 //! still win. Without it every candidate is matched, exactly as the paper.
 
-use jointloc_features::Features;
 use nalgebra::Point2;
 use rayon::prelude::*;
 
 use crate::candidate::{Candidate, MatchContext, QueryView, Rejection, evaluate};
 use crate::error::Result;
+use crate::tile_store::TileStore;
 use crate::tiles::MapTiles;
 
 /// What the candidates share.
 #[derive(Debug, Clone, Copy)]
 pub(crate) struct SearchInput<'a> {
     pub tiles: &'a MapTiles,
-    pub tile_features: &'a [Features],
+    pub store: &'a TileStore,
     pub ctx: MatchContext<'a>,
     pub parallel: bool,
     /// Inliers that make a candidate decisive (see the module docs); `None` never stops early.
@@ -62,13 +62,14 @@ pub(crate) fn run(
         .chain(tail.chunks(batch))
     {
         let eval = |&(v, t): &(usize, usize)| {
+            let features = input.store.get(input.tiles, t)?;
             evaluate(
                 &input.ctx,
                 v,
                 views[v],
                 t,
                 &input.tiles.tiles()[t],
-                &input.tile_features[t],
+                &features,
             )
         };
         let results: Vec<_> = if input.parallel && chunk.len() > 1 {

@@ -21,6 +21,10 @@ use rand::{Rng, SeedableRng};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
+use crate::error::Result;
+use crate::tile_store::TileStore;
+use crate::tiles::MapTiles;
+
 /// Settings of the shortlist.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
@@ -63,41 +67,73 @@ pub(crate) struct TileIndex {
 impl TileIndex {
     /// Trains the vocabulary on the tiles' descriptors and assigns every tile keypoint its
     /// word; `None` when the tiles have fewer descriptors than words or differ in descriptor
-    /// length.
-    pub(crate) fn build(tile_features: &[Features], config: &ShortlistConfig) -> Option<Self> {
-        let dim = tile_features.iter().find(|f| !f.is_empty())?.descriptor_dim;
-        if dim == 0
-            || tile_features
-                .iter()
-                .any(|f| !f.is_empty() && f.descriptor_dim != dim)
-        {
-            return None;
-        }
-        let total: usize = tile_features.iter().map(Features::len).sum();
+    /// length. Two passes over the tiles of `store`, one tile in memory per thread at a time
+    /// beyond the store's own budget.
+    pub(crate) fn build(
+        store: &TileStore,
+        map: &MapTiles,
+        config: &ShortlistConfig,
+    ) -> Result<Option<Self>> {
+        let lens: Vec<usize> = (0..store.len()).map(|t| store.keypoints(t)).collect();
+        let total: usize = lens.iter().sum();
         let words = config.words.clamp(1, u16::MAX as usize);
         if total < words {
-            return None;
+            return Ok(None);
         }
+        // Every `stride`-th descriptor in tile order, as if all tiles were one list.
         let stride = total.div_ceil(config.training_descriptors.max(words));
-        let sample: Vec<&[f32]> = tile_features
+        let starts: Vec<usize> = lens
             .iter()
-            .flat_map(|f| (0..f.len()).map(move |i| f.descriptor(i)))
-            .step_by(stride)
-            .collect();
-        let centroids = kmeans(&sample, dim, words, config.iterations, config.seed);
-        let tile_words = tile_features
-            .par_iter()
-            .map(|f| {
-                (0..f.len())
-                    .map(|i| nearest(&centroids, dim, f.descriptor(i)) as u16)
-                    .collect()
+            .scan(0usize, |acc, &n| {
+                let s = *acc;
+                *acc += n;
+                Some(s)
             })
             .collect();
-        Some(Self {
+        let sampled: Vec<Option<(usize, Vec<f32>)>> = (0..store.len())
+            .into_par_iter()
+            .map(|t| {
+                if lens[t] == 0 {
+                    return Ok(None);
+                }
+                let f = store.get(map, t)?;
+                let first = (stride - starts[t] % stride) % stride;
+                let mut out = Vec::new();
+                for i in (first..f.len()).step_by(stride) {
+                    out.extend_from_slice(f.descriptor(i));
+                }
+                Ok(Some((f.descriptor_dim, out)))
+            })
+            .collect::<Result<_>>()?;
+        let Some(dim) = sampled.iter().flatten().map(|(d, _)| *d).next() else {
+            return Ok(None);
+        };
+        if dim == 0 || sampled.iter().flatten().any(|(d, _)| *d != dim) {
+            return Ok(None);
+        }
+        let sample: Vec<&[f32]> = sampled
+            .iter()
+            .flatten()
+            .flat_map(|(_, d)| d.chunks_exact(dim))
+            .collect();
+        let centroids = kmeans(&sample, dim, words, config.iterations, config.seed);
+        let tile_words = (0..store.len())
+            .into_par_iter()
+            .map(|t| {
+                if lens[t] == 0 {
+                    return Ok(Vec::new());
+                }
+                let f = store.get(map, t)?;
+                Ok((0..f.len())
+                    .map(|i| nearest(&centroids, dim, f.descriptor(i)) as u16)
+                    .collect())
+            })
+            .collect::<Result<_>>()?;
+        Ok(Some(Self {
             dim,
             centroids,
             tile_words,
-        })
+        }))
     }
 
     fn words(&self) -> usize {
@@ -148,17 +184,21 @@ impl TileIndex {
     /// window.
     pub(crate) fn rank(
         &self,
-        tile_features: &[Features],
+        store: &TileStore,
+        map: &MapTiles,
         views: &[(usize, Vec<f32>)],
         window: (f32, f32),
         tiles: &[usize],
         keep: usize,
-    ) -> Vec<(usize, usize)> {
+    ) -> Result<Vec<(usize, usize)>> {
         let per_tile: Vec<Vec<f32>> = tiles
             .par_iter()
             .map(|&t| {
-                let f = &tile_features[t];
                 let mut best = vec![f32::NEG_INFINITY; views.len()];
+                if self.tile_words[t].is_empty() {
+                    return Ok(best);
+                }
+                let f = store.get(map, t)?;
                 for (x0, y0) in windows(f.image_size, window) {
                     let inside: Vec<(usize, u16)> = self.tile_words[t]
                         .iter()
@@ -172,14 +212,14 @@ impl TileIndex {
                     if inside.is_empty() {
                         continue;
                     }
-                    let wv = self.aggregate(f, &inside);
+                    let wv = self.aggregate(&f, &inside);
                     for (b, (_, v)) in best.iter_mut().zip(views) {
                         *b = b.max(v.iter().zip(&wv).map(|(a, c)| a * c).sum());
                     }
                 }
-                best
+                Ok(best)
             })
-            .collect();
+            .collect::<Result<_>>()?;
         let mut scored: Vec<(f32, usize, usize, usize)> = per_tile
             .iter()
             .zip(tiles)
@@ -194,7 +234,7 @@ impl TileIndex {
             .collect();
         scored.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
         scored.truncate(keep);
-        scored.into_iter().map(|(_, _, v, t)| (v, t)).collect()
+        Ok(scored.into_iter().map(|(_, _, v, t)| (v, t)).collect())
     }
 }
 
@@ -315,6 +355,36 @@ mod tests {
 
     const DIM: usize = 16;
 
+    /// A map for the store's signature: in-memory stores never read it.
+    fn no_map() -> MapTiles {
+        MapTiles::from_image(
+            image::GrayImage::new(10, 10),
+            1.0,
+            (10, 10),
+            0.5,
+            std::path::Path::new("."),
+        )
+        .unwrap()
+    }
+
+    fn build(tiles: &[Features], config: &ShortlistConfig) -> Option<TileIndex> {
+        TileIndex::build(&TileStore::from_features(tiles.to_vec()), &no_map(), config).unwrap()
+    }
+
+    fn rank(
+        index: &TileIndex,
+        tiles: &[Features],
+        views: &[(usize, Vec<f32>)],
+        window: (f32, f32),
+        order: &[usize],
+        keep: usize,
+    ) -> Vec<(usize, usize)> {
+        let store = TileStore::from_features(tiles.to_vec());
+        index
+            .rank(&store, &no_map(), views, window, order, keep)
+            .unwrap()
+    }
+
     /// Random landmarks: a descriptor each, at a random place in a `size` px image.
     fn landmarks(rng: &mut ChaCha8Rng, n: usize, size: f32) -> Features {
         let mut f = Features {
@@ -368,12 +438,12 @@ mod tests {
                 seed,
                 ..Default::default()
             };
-            let index = TileIndex::build(&tiles, &config).expect("index");
+            let index = build(&tiles, &config).expect("index");
             let order: Vec<usize> = (0..tiles.len()).collect();
             for (t, tile) in tiles.iter().enumerate() {
                 let view = view_of(&mut rng, tile, (0.0, 0.0, 100.0), 50);
                 let vlad = index.vlad(&view);
-                let ranked = index.rank(&tiles, &[(7, vlad)], (100.0, 100.0), &order, 3);
+                let ranked = rank(&index, &tiles, &[(7, vlad)], (100.0, 100.0), &order, 3);
                 assert_eq!(ranked[0], (7, t), "seed {seed}: view of tile {t}");
                 assert_eq!(ranked.len(), 3);
             }
@@ -390,19 +460,72 @@ mod tests {
             words: 16,
             ..Default::default()
         };
-        let index = TileIndex::build(&tiles, &config).expect("index");
+        let index = build(&tiles, &config).expect("index");
         let order: Vec<usize> = (0..tiles.len()).collect();
         let (mut windowed, mut whole) = (0, 0);
         for (t, tile) in tiles.iter().enumerate() {
             let view = view_of(&mut rng, tile, (100.0, 100.0, 100.0), 40);
             let vlad = index.vlad(&view);
-            let w = index.rank(&tiles, &[(0, vlad.clone())], (100.0, 100.0), &order, 1);
+            let w = rank(
+                &index,
+                &tiles,
+                &[(0, vlad.clone())],
+                (100.0, 100.0),
+                &order,
+                1,
+            );
             windowed += usize::from(w[0].1 == t);
-            let a = index.rank(&tiles, &[(0, vlad)], (200.0, 200.0), &order, 1);
+            let a = rank(&index, &tiles, &[(0, vlad)], (200.0, 200.0), &order, 1);
             whole += usize::from(a[0].1 == t);
         }
         assert!(windowed >= 29, "windows: {windowed} of 30 first");
         assert!(whole < windowed, "whole tiles: {whole} of 30 first");
+    }
+
+    /// Streamed from a cache file with room for two tiles, the index and the ranking are those
+    /// of the tiles held in memory.
+    #[test]
+    fn streaming_from_the_cache_gives_the_same_index_and_ranking() {
+        let mut rng = ChaCha8Rng::seed_from_u64(21);
+        let tiles: Vec<Features> = (0..12).map(|_| landmarks(&mut rng, 150, 100.0)).collect();
+        let config = ShortlistConfig {
+            words: 8,
+            training_descriptors: 500,
+            ..Default::default()
+        };
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("t.tiles");
+        std::fs::write(&path, crate::cache::encode("k", &tiles)).unwrap();
+        let file = crate::cache::CacheFile::open(&path, "k", tiles.len())
+            .unwrap()
+            .unwrap();
+        let one = 150 * (8 + 4 + 4 * DIM);
+        let store = TileStore::from_cache_file(file, 2 * one);
+        let streamed = TileIndex::build(&store, &no_map(), &config)
+            .unwrap()
+            .unwrap();
+        let held = build(&tiles, &config).unwrap();
+        assert_eq!(streamed.centroids, held.centroids);
+        assert_eq!(streamed.tile_words, held.tile_words);
+        let order: Vec<usize> = (0..tiles.len()).collect();
+        let view = view_of(&mut rng, &tiles[4], (0.0, 0.0, 100.0), 30);
+        let vlad = held.vlad(&view);
+        let a = streamed
+            .rank(
+                &store,
+                &no_map(),
+                &[(0, vlad.clone())],
+                (100.0, 100.0),
+                &order,
+                5,
+            )
+            .unwrap();
+        assert_eq!(
+            a,
+            rank(&held, &tiles, &[(0, vlad)], (100.0, 100.0), &order, 5)
+        );
+        assert_eq!(a[0], (0, 4));
+        assert!(store.resident_bytes() <= 2 * one);
     }
 
     #[test]
@@ -413,12 +536,12 @@ mod tests {
             words: 8,
             ..Default::default()
         };
-        let a = TileIndex::build(&tiles, &config).expect("index");
-        let b = TileIndex::build(&tiles, &config).expect("index");
+        let a = build(&tiles, &config).expect("index");
+        let b = build(&tiles, &config).expect("index");
         assert_eq!(a.centroids, b.centroids);
         assert_eq!(a.tile_words, b.tile_words);
         let other = ShortlistConfig { seed: 1, ..config };
-        let c = TileIndex::build(&tiles, &other).expect("index");
+        let c = build(&tiles, &other).expect("index");
         assert_ne!(a.centroids, c.centroids);
         for t in &tiles {
             let n: f32 = a.vlad(t).iter().map(|x| x * x).sum();
@@ -436,8 +559,8 @@ mod tests {
             ..Default::default()
         };
         let config = ShortlistConfig::default();
-        assert!(TileIndex::build(std::slice::from_ref(&one), &config).is_none());
-        assert!(TileIndex::build(&[], &config).is_none());
+        assert!(build(std::slice::from_ref(&one), &config).is_none());
+        assert!(build(&[], &config).is_none());
         let mut other = one.clone();
         other.descriptor_dim = 3;
         other.descriptors = vec![0.5; 9];
@@ -445,8 +568,8 @@ mod tests {
             words: 2,
             ..Default::default()
         };
-        assert!(TileIndex::build(&[one.clone(), other], &small).is_none());
-        assert!(TileIndex::build(&[one], &small).is_some());
+        assert!(build(&[one.clone(), other], &small).is_none());
+        assert!(build(&[one], &small).is_some());
     }
 
     #[test]

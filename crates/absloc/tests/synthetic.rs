@@ -250,6 +250,47 @@ fn a_shortlisted_whole_map_search_finds_the_exhaustive_fix_from_fewer_pairs() {
         }
         let (all, short) = (&fixes[0], &fixes[1]);
         assert!(short.searched_tiles <= 48 + 3, "{}", short.searched_tiles);
+        // The same search with the tile features streamed from the cache file, 1 MB of them
+        // (one ORB tile) in memory: the same fix, every tile read, the budget kept.
+        let dir = tempfile::tempdir().unwrap();
+        let config = AbsLocConfig {
+            tile_memory_mb: 1,
+            ..Default::default()
+        };
+        let mut streamed = common::orb_localizer_cached(seed, 2000, GSD, config, dir.path());
+        let k = (seed - 20) as f64;
+        let (u, v) = (1150.0 + 160.0 * k, 1250.0 + 95.0 * k);
+        let out = streamed
+            .localize(
+                &frame(&streamed, u, v, -2.0 + 0.9 * k),
+                ALT,
+                &Prior::default(),
+            )
+            .unwrap();
+        let fix = out
+            .fix()
+            .unwrap_or_else(|| panic!("seed {seed}, streamed: {out:?}"));
+        assert_eq!(fix.position, short.position, "seed {seed}");
+        assert_eq!(fix.searched_tiles, short.searched_tiles, "seed {seed}");
+        let store = streamed.tile_store().expect("opened by the search");
+        assert_eq!(
+            streamed.cache_status(),
+            Some(jointloc_absloc::CacheStatus::Built)
+        );
+        assert!(
+            store.reads() >= store.len(),
+            "{} of {}",
+            store.reads(),
+            store.len()
+        );
+        // At most the budget, or the one tile just read where a tile is larger (ORB: 256
+        // binary values per keypoint, held as floats).
+        let largest = (0..store.len())
+            .map(|t| store.keypoints(t) * (8 + 4 + 4 * 256))
+            .max()
+            .unwrap_or(0);
+        let resident = store.resident_bytes();
+        assert!(resident <= largest.max(1 << 20), "{resident} of {largest}");
         assert!(
             all.searched_tiles > 2 * short.searched_tiles,
             "seed {seed}: exhaustive {} vs shortlist {}",

@@ -110,6 +110,8 @@ fn with_no_prior_the_whole_map_is_searched_and_too_little_ground_is_refused() {
         assert!(turn.abs() < 0.6f64.to_radians(), "seed {seed}: {turn} rad");
 
         assert!(fix.confidence >= 0.15, "seed {seed}: w {}", fix.confidence);
+        // Registered by correlation: the tile features were never needed, nor extracted.
+        assert!(loc.tile_store().is_none() && loc.cache_status().is_none());
 
         // The same view against another map: nothing there to find, so no fix, or a weak one
         // (below the 0.25 at which JointLoc aligns on whole-map fixes of any span).

@@ -155,10 +155,19 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     )?;
     let clock = std::time::Instant::now();
     let mut loc = AbsLocalizer::new(tiles, ds.camera, pipeline, cfg)?;
+    // The tile features at the first frame's scale, before the clock of the first search.
+    let first_altitude = ds
+        .frames
+        .iter()
+        .filter_map(|f| f.altitude)
+        .find(|a| a.is_finite() && *a > 0.0);
+    let status = match first_altitude {
+        Some(a) => format!("{:?}", loc.prepare(a)?),
+        None => "not opened (no usable altitude)".to_string(),
+    };
     eprintln!(
-        "{} tiles, features {:?} in {:.1} s",
+        "{} tiles, features {status} in {:.1} s",
         loc.tiles().len(),
-        loc.cache_status(),
         clock.elapsed().as_secs_f64()
     );
     let mut text = format!(

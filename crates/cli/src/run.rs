@@ -109,8 +109,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         Mode::Threaded
     };
     let blind = BlindCamera::new(config.faults.clone());
+    let first_altitude = sequence.frames.iter().find_map(|f| f.altitude);
     let mut system = JointLoc::builder(camera, tiles, config)
         .mode(mode)
+        .expected_altitude(first_altitude)
         .models_dir(args.models_dir.clone())
         .threads(args.threads)
         .observer(Box::new(progress::Progress::new(n)))

@@ -28,6 +28,7 @@ pub struct JointLocBuilder {
     threads: Option<usize>,
     source: Option<Box<dyn FixSource>>,
     observers: Vec<Box<dyn Observer>>,
+    expected_altitude: Option<f64>,
 }
 
 impl std::fmt::Debug for JointLocBuilder {
@@ -58,6 +59,7 @@ impl JointLoc {
             threads: None,
             source: None,
             observers: Vec::new(),
+            expected_altitude: None,
         }
     }
 }
@@ -88,6 +90,15 @@ impl JointLocBuilder {
         self
     }
 
+    /// The altitude the flight starts at (its first altimeter reading). Where single frames
+    /// are matched at it, the map's tile features are opened (or extracted and cached) while
+    /// building, not at the first search, which in real time would cost the first fixes;
+    /// where virtual frames are registered instead they are never loaded.
+    pub fn expected_altitude(mut self, altitude: Option<f64>) -> Self {
+        self.expected_altitude = altitude.filter(|a| a.is_finite() && *a > 0.0);
+        self
+    }
+
     /// Adds an observer, called for every frame and fix.
     pub fn observer(mut self, observer: Box<dyn Observer>) -> Self {
         self.observers.push(observer);
@@ -109,6 +120,7 @@ impl JointLocBuilder {
         }
         let ground = self.tiles.ground();
         let map_gsd_m = self.tiles.gsd_m();
+        let virtual_frames = VirtualFrames::new(config.mosaic, self.camera, map_gsd_m);
         let source: Box<dyn FixSource> = match self.source {
             Some(source) => source,
             None => {
@@ -118,12 +130,14 @@ impl JointLocBuilder {
                     max_keypoints: None,
                 };
                 let pipeline = resolve(&config.matcher, &options)?;
-                Box::new(AbsLocalizer::new(
-                    self.tiles,
-                    self.camera,
-                    pipeline,
-                    config.absloc.clone(),
-                )?)
+                let mut localizer =
+                    AbsLocalizer::new(self.tiles, self.camera, pipeline, config.absloc.clone())?;
+                if let Some(a) = self.expected_altitude
+                    && virtual_frames.zoom(a).is_none()
+                {
+                    localizer.prepare(a)?;
+                }
+                Box::new(localizer)
             }
         };
         let source: Box<dyn FixSource> = if config.faults.affects_fixes() {
@@ -136,7 +150,6 @@ impl JointLocBuilder {
         let mut slam_config = config.slam.clone();
         slam_config.loop_closing.global_ba_thread = self.mode == Mode::Threaded;
         let slam = System::new(self.camera, slam_config)?;
-        let virtual_frames = VirtualFrames::new(config.mosaic, self.camera, map_gsd_m);
         JointLoc::assemble(
             slam,
             source,

@@ -18,21 +18,37 @@ use rand_chacha::ChaCha8Rng;
 /// `seed` at `gsd` m/px, 500-pixel tiles overlapping by half, a 500 × 500 ideal camera with
 /// f = 500 px, and no feature cache.
 pub fn orb_localizer(seed: u64, side: u32, gsd: f64, config: AbsLocConfig) -> AbsLocalizer {
-    let map = MapTiles::from_image(
-        texture(side, side, seed),
-        gsd,
-        (500, 500),
-        0.5,
-        Path::new("."),
-    )
-    .unwrap();
+    orb_localizer_with_cache(seed, side, gsd, config, None)
+}
+
+/// [`orb_localizer`] with its tile features cached in `dir` (read back tile by tile).
+pub fn orb_localizer_cached(
+    seed: u64,
+    side: u32,
+    gsd: f64,
+    config: AbsLocConfig,
+    dir: &Path,
+) -> AbsLocalizer {
+    orb_localizer_with_cache(seed, side, gsd, config, Some(dir))
+}
+
+fn orb_localizer_with_cache(
+    seed: u64,
+    side: u32,
+    gsd: f64,
+    config: AbsLocConfig,
+    cache_dir: Option<&Path>,
+) -> AbsLocalizer {
+    let root = cache_dir.unwrap_or(Path::new("."));
+    let map = MapTiles::from_image(texture(side, side, seed), gsd, (500, 500), 0.5, root).unwrap();
     let pipeline = resolve("orb", &RegistryOptions::default()).unwrap();
     AbsLocalizer::new(
         map,
         PinholeCamera::ideal(500.0, 500, 500),
         pipeline,
         AbsLocConfig {
-            cache: false,
+            cache: cache_dir.is_some(),
+            cache_dir: cache_dir.map(Path::to_path_buf),
             ..config
         },
     )
