@@ -96,6 +96,11 @@ pub struct AbsLocConfig {
     pub correlation: CorrelationConfig,
     /// The shortlist of a whole-map search (VLAD ranking of view × tile pairs).
     pub shortlist: ShortlistConfig,
+    /// A whole-map search of a single frame first matches the tiles under the best places
+    /// of the coarse correlation (gradients and grey levels of the frame against the pooled
+    /// map, [`crate::coarse_places`]), and only then the VLAD shortlist. Only where the
+    /// shortlist applies (more pairs than [`ShortlistConfig::candidates`], not 0).
+    pub coarse_places_first: bool,
 }
 
 impl Default for AbsLocConfig {
@@ -121,6 +126,7 @@ impl Default for AbsLocConfig {
             ssim: SsimConfig::default(),
             correlation: CorrelationConfig::default(),
             shortlist: ShortlistConfig::default(),
+            coarse_places_first: true,
         }
     }
 }
@@ -631,7 +637,29 @@ impl AbsLocalizer {
             vec![first]
         };
         let mut found = None;
-        for tiles in passes.iter().filter(|p| !p.is_empty()) {
+        // Whether a whole-map search over `angles` is ranked (shortlisted, coarse places first).
+        let keep = self.config.shortlist.candidates;
+        let cut = |angles: usize| keep > 0 && all.len() * angles > keep;
+        let coarse = |angles: usize| {
+            self.config.coarse_places_first
+                && self.config.correlation.whole_map.candidates > 0
+                && cut(angles)
+        };
+        if local.is_none() && coarse(first_angles.len()) {
+            found = self.coarse_first(
+                &store,
+                frame,
+                &ctx,
+                &all,
+                heading,
+                (scale, expected),
+                &mut views,
+                &mut searched,
+                &mut best_rejection,
+            )?;
+        }
+        let from_coarse = found.is_some();
+        for tiles in passes.iter().filter(|p| !p.is_empty() && !from_coarse) {
             found = self.search(
                 &store,
                 frame,
@@ -650,9 +678,7 @@ impl AbsLocalizer {
             }
         }
         // Whether `found` comes from a search the shortlist cut short.
-        let keep = self.config.shortlist.candidates;
-        let cut = |angles: usize| keep > 0 && all.len() * angles > keep;
-        let mut shortlisted = local.is_none() && cut(first_angles.len());
+        let mut shortlisted = local.is_none() && !from_coarse && cut(first_angles.len());
         let mut global = local_is_all;
         // Retry everywhere, with the rotation sweep unless the caller fixed the heading; not
         // when that is exactly what was just searched.
@@ -668,21 +694,37 @@ impl AbsLocalizer {
                 angles = angles.len(),
                 "local search failed: global search"
             );
-            found = self.search(
-                &store,
-                frame,
-                &ctx,
-                &all,
-                &angles,
-                scale,
-                expected,
-                true,
-                &mut views,
-                &mut searched,
-                &mut best_rejection,
-            )?;
+            if coarse(angles.len()) {
+                found = self.coarse_first(
+                    &store,
+                    frame,
+                    &ctx,
+                    &all,
+                    prior.heading,
+                    (scale, expected),
+                    &mut views,
+                    &mut searched,
+                    &mut best_rejection,
+                )?;
+            }
+            let from_coarse = found.is_some();
+            if !from_coarse {
+                found = self.search(
+                    &store,
+                    frame,
+                    &ctx,
+                    &all,
+                    &angles,
+                    scale,
+                    expected,
+                    true,
+                    &mut views,
+                    &mut searched,
+                    &mut best_rejection,
+                )?;
+            }
             global = true;
-            shortlisted = cut(angles.len());
+            shortlisted = !from_coarse && cut(angles.len());
         }
         let found = match found {
             Some(best) if shortlisted => Some(self.refine(
@@ -955,6 +997,35 @@ impl AbsLocalizer {
         angles: &[f64],
         expected: f64,
     ) -> Vec<(f64, (f64, f64), i64)> {
+        // Each placement also at a third of the sweep's step either side: the fine correlation
+        // of a 200-pixel view wants its heading within a few degrees.
+        let third = if angles.len() > 1 {
+            std::f64::consts::TAU / angles.len() as f64 / 3.0
+        } else {
+            0.0
+        };
+        let turns: &[f64] = if third > 0.0 {
+            &[0.0, -1.0, 1.0]
+        } else {
+            &[0.0]
+        };
+        self.whole_map_places(view, coverage, angles, expected)
+            .into_iter()
+            .flat_map(|(angle, at, radius)| {
+                turns.iter().map(move |t| (angle + t * third, at, radius))
+            })
+            .collect()
+    }
+
+    /// The best distinct coarse placements of `view` over the whole map and `angles`, best
+    /// first, each as (heading, its principal point's map pixel, a coarse cell in map pixels).
+    fn whole_map_places(
+        &self,
+        view: &FrameView<'_>,
+        coverage: Option<&GrayImage>,
+        angles: &[f64],
+        expected: f64,
+    ) -> Vec<(f64, (f64, f64), i64)> {
         let cfg = self.config.correlation;
         let wm = cfg.whole_map;
         let t = Instant::now();
@@ -972,7 +1043,7 @@ impl AbsLocalizer {
             tracing::info!(
                 factor,
                 seconds = t.elapsed().as_secs_f64(),
-                "map pooled for the whole-map correlation of virtual frames"
+                "map pooled for the whole-map correlation"
             );
             built
         });
@@ -991,24 +1062,19 @@ impl AbsLocalizer {
                 }
             })
             .collect();
+        let views_ms = t.elapsed().as_secs_f64() * 1e3;
         let kept = coarse.search(&signals, &wm);
         // The fine correlation searches a coarse cell either way around a rescored place.
         let radius = coarse.factor() as i64;
         tracing::debug!(
             best = kept.first().map(|p| p.score),
             candidates = kept.len(),
+            views_ms,
             ms = t.elapsed().as_secs_f64() * 1e3,
-            "whole-map correlation of a virtual frame"
+            "whole-map correlation"
         );
-        // Each placement also at a third of the sweep's step either side: the fine correlation
-        // of a 200-pixel view wants its heading within a few degrees.
-        let third = if angles.len() > 1 {
-            std::f64::consts::TAU / angles.len() as f64 / 3.0
-        } else {
-            0.0
-        };
         kept.into_iter()
-            .flat_map(|p| {
+            .map(|p| {
                 let angle = views[p.view].0;
                 let at = (p.at[0], p.at[1]);
                 let (x, y) = self.tiles.pixel_to_world(at.0, at.1);
@@ -1019,14 +1085,86 @@ impl AbsLocalizer {
                     score = p.score,
                     "whole-map coarse candidate"
                 );
-                let turns: &[f64] = if third > 0.0 {
-                    &[0.0, -1.0, 1.0]
-                } else {
-                    &[0.0]
-                };
-                turns.iter().map(move |t| (angle + t * third, at, radius))
+                (angle, at, radius)
             })
             .collect()
+    }
+
+    /// A whole-map search of a single frame through the coarse correlation first
+    /// ([`AbsLocConfig::coarse_places_first`]): the frame, turned to each of
+    /// [`CorrelationConfig::rotation_hypotheses`] headings (or `heading`), is placed on the
+    /// pooled map by its gradients and grey levels, and the tile centred nearest each of the
+    /// best places is matched at that place's heading, best place first, until one gives a
+    /// decisive match (the early-stop rule of [`crate::search`]). `None` when no place gave
+    /// an accepted match: the VLAD shortlist follows.
+    #[allow(clippy::too_many_arguments)]
+    fn coarse_first(
+        &self,
+        store: &TileStore,
+        frame: &GrayImage,
+        ctx: &ViewContext<'_>,
+        all: &[usize],
+        heading: Option<f64>,
+        (scale, expected): (f64, f64),
+        views: &mut Vec<(f64, QueryView)>,
+        searched: &mut usize,
+        best_rejection: &mut Option<Rejection>,
+    ) -> Result<Option<Candidate>> {
+        let t = Instant::now();
+        let angles = heading.map_or_else(
+            || sweep(self.config.correlation.rotation_hypotheses),
+            |h| vec![h],
+        );
+        let view = FrameView::frame(
+            frame,
+            expected * 0.5 * (self.camera.fx + self.camera.fy) * self.tiles.gsd_m(),
+        );
+        let places = self.whole_map_places(&view, None, &angles, expected);
+        let mut best: Option<Candidate> = None;
+        let decisive = self.config.early_stop_inliers.unwrap_or(usize::MAX);
+        for (rank, &(angle, (u, v), _)) in places.iter().enumerate() {
+            let (x, y) = self.tiles.pixel_to_world(u, v);
+            // The tile centred nearest the place holds most of the frame; its neighbours would
+            // multiply the cost of a place that is wrong.
+            let mut tiles = self.tiles.containing(all, x, y);
+            self.tiles.order_by_distance(&mut tiles, x, y);
+            tiles.truncate(1);
+            if tiles.is_empty() {
+                continue;
+            }
+            let found = self.search(
+                store,
+                frame,
+                ctx,
+                &tiles,
+                &[angle],
+                scale,
+                expected,
+                false,
+                views,
+                searched,
+                best_rejection,
+            )?;
+            if let Some(c) = found {
+                tracing::debug!(
+                    rank,
+                    inliers = c.inliers.len(),
+                    ms = t.elapsed().as_secs_f64() * 1e3,
+                    "whole-map search: coarse place matched"
+                );
+                let stop = c.inliers.len() >= decisive;
+                if best
+                    .as_ref()
+                    .is_none_or(|b| c.inliers.len() > b.inliers.len())
+                {
+                    best = Some(c);
+                }
+                if stop {
+                    break;
+                }
+            }
+        }
+        Ok(best)
     }
 
     /// The best placement of `view` turned by `angle`, its principal point within `radius` map

@@ -228,9 +228,11 @@ fn a_shortlisted_whole_map_search_finds_the_exhaustive_fix_from_fewer_pairs() {
     // 7 × 7 tiles × 8 rotations = 392 pairs; no prior, so both search the whole map.
     for seed in [21, 22, 23] {
         let mut fixes = Vec::new();
-        for candidates in [0, 48] {
+        // Every pair; the VLAD shortlist alone; the coarse places first (the default).
+        for (candidates, coarse) in [(0, false), (48, false), (48, true)] {
             let mut config = AbsLocConfig::default();
             config.shortlist.candidates = candidates;
+            config.coarse_places_first = coarse;
             let mut loc = localizer(seed, 2000, config);
             let k = (seed - 20) as f64;
             let (u, v) = (1150.0 + 160.0 * k, 1250.0 + 95.0 * k);
@@ -248,13 +250,20 @@ fn a_shortlisted_whole_map_search_finds_the_exhaustive_fix_from_fewer_pairs() {
             assert!(fix.global);
             fixes.push(fix);
         }
-        let (all, short) = (&fixes[0], &fixes[1]);
+        let (all, short, coarse) = (&fixes[0], &fixes[1], &fixes[2]);
         assert!(short.searched_tiles <= 48 + 3, "{}", short.searched_tiles);
+        // The tiles under the best coarse place hold the frame: a few pairs, not 48.
+        assert!(
+            coarse.searched_tiles <= 4,
+            "seed {seed}: {}",
+            coarse.searched_tiles
+        );
         // The same search with the tile features streamed from the cache file, 1 MB of them
         // (one ORB tile) in memory: the same fix, every tile read, the budget kept.
         let dir = tempfile::tempdir().unwrap();
         let config = AbsLocConfig {
             tile_memory_mb: 1,
+            coarse_places_first: false,
             ..Default::default()
         };
         let mut streamed = common::orb_localizer_cached(seed, 2000, GSD, config, dir.path());

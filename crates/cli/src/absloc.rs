@@ -103,6 +103,7 @@ fn config_of(args: &Args) -> anyhow::Result<AbsLocConfig> {
     }
     if args.exhaustive || args.no_shortlist {
         cfg.shortlist.candidates = 0;
+        cfg.coarse_places_first = false;
     }
     if let Some(c) = args.confidence {
         cfg.confidence = c;
