@@ -49,6 +49,8 @@ impl FixSource for AbsLocalizer {
         tracing::debug!(
             frame = request.frame,
             timestamp = request.timestamp,
+            prior = ?request.prior.position,
+            heading = ?request.prior.heading,
             "absolute localisation request"
         );
         let outcome = self.localize_view(&view, request.prior)?;
