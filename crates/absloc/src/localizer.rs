@@ -636,49 +636,38 @@ impl AbsLocalizer {
         } else {
             vec![first]
         };
-        let mut found = None;
-        // Whether a whole-map search over `angles` is ranked (shortlisted, coarse places first).
-        let keep = self.config.shortlist.candidates;
-        let cut = |angles: usize| keep > 0 && all.len() * angles > keep;
-        let coarse = |angles: usize| {
-            self.config.coarse_places_first
-                && self.config.correlation.whole_map.candidates > 0
-                && cut(angles)
-        };
-        if local.is_none() && coarse(first_angles.len()) {
-            found = self.coarse_first(
+        let (mut found, mut shortlisted) = if local.is_none() {
+            self.search_whole_map(
                 &store,
                 frame,
                 &ctx,
                 &all,
-                heading,
+                (heading, &first_angles),
                 (scale, expected),
-                &mut views,
-                &mut searched,
-                &mut best_rejection,
-            )?;
-        }
-        let from_coarse = found.is_some();
-        for tiles in passes.iter().filter(|p| !p.is_empty() && !from_coarse) {
-            found = self.search(
-                &store,
-                frame,
-                &ctx,
-                tiles,
-                &first_angles,
-                scale,
-                expected,
-                local.is_none(),
-                &mut views,
-                &mut searched,
-                &mut best_rejection,
-            )?;
-            if found.is_some() {
-                break;
+                (&mut views, &mut searched, &mut best_rejection),
+            )?
+        } else {
+            let mut found = None;
+            for tiles in passes.iter().filter(|p| !p.is_empty()) {
+                found = self.search(
+                    &store,
+                    frame,
+                    &ctx,
+                    tiles,
+                    &first_angles,
+                    scale,
+                    expected,
+                    false,
+                    &mut views,
+                    &mut searched,
+                    &mut best_rejection,
+                )?;
+                if found.is_some() {
+                    break;
+                }
             }
-        }
-        // Whether `found` comes from a search the shortlist cut short.
-        let mut shortlisted = local.is_none() && !from_coarse && cut(first_angles.len());
+            (found, false)
+        };
         let mut global = local_is_all;
         // Retry everywhere, with the rotation sweep unless the caller fixed the heading; not
         // when that is exactly what was just searched.
@@ -694,37 +683,16 @@ impl AbsLocalizer {
                 angles = angles.len(),
                 "local search failed: global search"
             );
-            if coarse(angles.len()) {
-                found = self.coarse_first(
-                    &store,
-                    frame,
-                    &ctx,
-                    &all,
-                    prior.heading,
-                    (scale, expected),
-                    &mut views,
-                    &mut searched,
-                    &mut best_rejection,
-                )?;
-            }
-            let from_coarse = found.is_some();
-            if !from_coarse {
-                found = self.search(
-                    &store,
-                    frame,
-                    &ctx,
-                    &all,
-                    &angles,
-                    scale,
-                    expected,
-                    true,
-                    &mut views,
-                    &mut searched,
-                    &mut best_rejection,
-                )?;
-            }
+            (found, shortlisted) = self.search_whole_map(
+                &store,
+                frame,
+                &ctx,
+                &all,
+                (prior.heading, &angles),
+                (scale, expected),
+                (&mut views, &mut searched, &mut best_rejection),
+            )?;
             global = true;
-            shortlisted = !from_coarse && cut(angles.len());
         }
         let found = match found {
             Some(best) if shortlisted => Some(self.refine(
@@ -1088,6 +1056,64 @@ impl AbsLocalizer {
                 (angle, at, radius)
             })
             .collect()
+    }
+
+    /// A search of `all` tiles over `angles` (the sweep, or `[h]` where `heading` is `h`)
+    /// with no prior position: the coarse places first where the search is ranked (more
+    /// pairs than [`ShortlistConfig::candidates`], not 0) and
+    /// [`AbsLocConfig::coarse_places_first`] is on, else, or when they give nothing, the pairs
+    /// shortlisted by VLAD. Also whether the shortlist cut the search short (its fix is then
+    /// refined over the other tiles that contain it).
+    #[allow(clippy::too_many_arguments)]
+    fn search_whole_map(
+        &self,
+        store: &TileStore,
+        frame: &GrayImage,
+        ctx: &ViewContext<'_>,
+        all: &[usize],
+        (heading, angles): (Option<f64>, &[f64]),
+        (scale, expected): (f64, f64),
+        (views, searched, best_rejection): (
+            &mut Vec<(f64, QueryView)>,
+            &mut usize,
+            &mut Option<Rejection>,
+        ),
+    ) -> Result<(Option<Candidate>, bool)> {
+        let keep = self.config.shortlist.candidates;
+        let ranked = keep > 0 && all.len() * angles.len() > keep;
+        if ranked
+            && self.config.coarse_places_first
+            && self.config.correlation.whole_map.candidates > 0
+        {
+            let found = self.coarse_first(
+                store,
+                frame,
+                ctx,
+                all,
+                heading,
+                (scale, expected),
+                views,
+                searched,
+                best_rejection,
+            )?;
+            if found.is_some() {
+                return Ok((found, false));
+            }
+        }
+        let found = self.search(
+            store,
+            frame,
+            ctx,
+            all,
+            angles,
+            scale,
+            expected,
+            true,
+            views,
+            searched,
+            best_rejection,
+        )?;
+        Ok((found, ranked))
     }
 
     /// A whole-map search of a single frame through the coarse correlation first
