@@ -75,6 +75,9 @@ pub struct JointLoc {
     /// metric from the altimeter; rotation from the fix's heading and a nadir camera), used
     /// only to predict where to search next, never to report a pose.
     provisional: Option<Sim3>,
+    /// Whether the fix that made `provisional` had at least
+    /// [`JointLocConfig::strong_fix_confidence`] (see [`Self::moves_provisional`]).
+    provisional_strong: bool,
     /// Absolute searches failed since the last fix (see
     /// [`JointLocConfig::sweep_after_failures`]).
     failures_in_a_row: usize,
@@ -182,6 +185,7 @@ impl JointLoc {
             ties: Vec::new(),
             alignment: None,
             provisional: None,
+            provisional_strong: false,
             failures_in_a_row: 0,
             timing: FusionTiming::default(),
             altitude,
@@ -428,8 +432,7 @@ impl JointLoc {
                 let loose = self.config.range_looseness(alt).sqrt();
                 let coarse =
                     self.altitude.ground().stated_sigma_m().unwrap_or(0.0) / DEM_SIGMA_REFERENCE_M;
-                self.altitude
-                    .set_window_s(self.config.altitude_window_s * loose.max(coarse));
+                self.altitude.set_scale(loose.max(coarse));
                 self.altitude.push(timestamp, p.centre(), alt)
             }
             (None, _) => self.altitude.clear(),
@@ -530,6 +533,7 @@ impl JointLoc {
         });
         self.alignment = None;
         self.provisional = None;
+        self.provisional_strong = false;
         self.first_world_timestamp = None;
         self.altitude.clear();
         self.lost_since = None;
@@ -585,6 +589,7 @@ impl JointLoc {
         if used
             && self.alignment.is_none()
             && let Some(pose) = submitted.pose
+            && self.moves_provisional(fix, &pose, submitted.altitude)
         {
             let rotation = fix.orientation() * pose.rotation().inverse();
             let centre = nalgebra::Vector3::from(fix.position);
@@ -593,6 +598,7 @@ impl JointLoc {
                 rotation,
                 translation: centre - rotation * pose.centre().coords,
             });
+            self.provisional_strong = fix.confidence >= self.config.strong_fix_confidence;
         }
         self.fixes.push(FixRecord {
             frame: submitted.frame,
@@ -620,6 +626,41 @@ impl JointLoc {
             .alignment_ms
             .push(t0.elapsed().as_secs_f64() * 1e3);
         Some(outcome)
+    }
+
+    /// Whether `fix` (of a frame tracked at SLAM `pose`, `altitude` above ground) replaces the
+    /// provisional similarity: always, unless it is weak (below
+    /// [`JointLocConfig::strong_fix_confidence`]) while a strong fix made the provisional one
+    /// and it lies farther from where that one puts the frame than twice the alignment's
+    /// inlier bound (scaled with the altitude). A weak fix far off is most likely a wrong
+    /// place (at 100 m over gravel under another sun: 15 inliers, 138 m off, after two fixes
+    /// of 255 inliers); had it moved the prior, every later search would have looked around
+    /// the wrong place, and fixes found there move with the UAV as right ones do. It is still
+    /// tied: the alignment's consensus decides on it.
+    fn moves_provisional(
+        &self,
+        fix: &jointloc_absloc::Fix,
+        pose: &CameraToWorld,
+        altitude: f64,
+    ) -> bool {
+        let Some(provisional) = &self.provisional else {
+            return true;
+        };
+        if !self.provisional_strong || fix.confidence >= self.config.strong_fix_confidence {
+            return true;
+        }
+        let predicted = provisional.transform_pose(pose).centre();
+        let off = (predicted.x - fix.position[0]).hypot(predicted.y - fix.position[1]);
+        let bound = 2.0 * self.config.inlier_threshold_m * self.config.range_looseness(altitude);
+        if off > bound {
+            tracing::debug!(
+                off_m = off,
+                bound_m = bound,
+                confidence = fix.confidence,
+                "a weak fix far from the provisional prediction leaves the search prior"
+            );
+        }
+        off <= bound
     }
 
     /// No world pose yet, no alignment and no take-off position: nothing but the fixes says

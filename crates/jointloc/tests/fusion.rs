@@ -134,6 +134,72 @@ fn wrong_fixes_are_flagged_and_out_voted() {
     assert!(e < 0.3, "online rmse {e:.3} m with wrong fixes");
 }
 
+/// Fixes from the truth, but the third search returns a weak fix (confidence 0.18) 30 m off,
+/// and, as a local search does, every search whose prior is more than 10 m from the frame
+/// finds the same wrong place again, moving with the UAV as the right one would.
+#[derive(Debug)]
+struct WrongPlaceNearPrior {
+    truth: TruthFixes,
+    gt: jointloc_geometry::trajectory::Trajectory,
+    requests: usize,
+}
+
+impl jointloc_system::FixSource for WrongPlaceNearPrior {
+    fn localize(
+        &mut self,
+        request: &jointloc_system::FixRequest<'_>,
+    ) -> Result<Option<jointloc_system::Located>, jointloc_absloc::AbslocError> {
+        self.requests += 1;
+        let mut located = self.truth.localize(request)?;
+        let i = self
+            .gt
+            .timestamps
+            .iter()
+            .position(|&t| (t - request.timestamp).abs() < 1e-3);
+        let far_prior = match (i, request.prior.position) {
+            (Some(i), Some([x, y])) => {
+                let c = self.gt.poses[i].centre();
+                (c.x - x).hypot(c.y - y) > 10.0
+            }
+            _ => false,
+        };
+        if let Some(jointloc_system::Located {
+            outcome: jointloc_absloc::Outcome::Fix(fix),
+            ..
+        }) = located.as_mut()
+            && (self.requests == 3 || far_prior)
+        {
+            fix.position[0] += 30.0;
+            fix.confidence = 0.18;
+        }
+        Ok(located)
+    }
+}
+
+/// Before the alignment exists, a weak fix far from where the strong ones put the frame does
+/// not become the search prior: the searches after it still look at the right place, and the
+/// alignment out-votes it. (Had it moved the prior, every later search would have found the
+/// wrong place again and the first alignment would have been 30 m off.)
+#[test]
+fn a_weak_far_fix_before_the_alignment_does_not_steer_the_searches() {
+    let config = JointLocConfig::default();
+    let source = WrongPlaceNearPrior {
+        truth: TruthFixes::new(flight(), 0.1, 5),
+        gt: ground_truth(flight()),
+        requests: 0,
+    };
+    let (_, outputs) = run(builder(flight(), config.clone(), source), &config);
+    let wrong: Vec<&FixRecord> = outputs
+        .fixes
+        .iter()
+        .filter(|f| f.confidence < 0.2)
+        .collect();
+    assert_eq!(wrong.len(), 1, "{:?}", outputs.fixes);
+    assert!(!wrong[0].inlier, "the wrong fix is in the alignment");
+    let e = rmse(&ground_truth(flight()), &online(&outputs));
+    assert!(e < 0.3, "online rmse {e:.3} m");
+}
+
 #[test]
 fn an_outage_is_counted_and_the_slam_carries_the_poses_through_it() {
     let mut config = JointLocConfig::default();
