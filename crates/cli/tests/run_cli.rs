@@ -166,37 +166,52 @@ fn start_position_narrows_the_first_search_seed_32() {
 }
 
 /// The altimeter aid moves z only, and towards the truth: the same run without it
-/// (`altitude_window_s = 0.0`) has identical x, y and a larger z error.
+/// (`altitude_window_s = 0.0`) has identical x, y and a larger z error online. At the end
+/// (`final_altitude_window_s = 0.0`) it moves z only; whether towards the truth is measured
+/// on 150 m flights (`docs/jointloc.md` §"z at the end"): on this 30 m one its 30 s window
+/// spans the whole flight.
 fn altimeter_aid_moves_z_towards_the_truth(seed: &str) {
     let base = base(seed);
     let data = dataset(seed);
     let dir = tempfile::tempdir().unwrap();
     let no_aid = dir.path().join("no-aid");
     let cfg = dir.path().join("no-aid.toml");
-    std::fs::write(&cfg, "altitude_window_s = 0.0\n").unwrap();
+    std::fs::write(
+        &cfg,
+        "altitude_window_s = 0.0\nfinal_altitude_window_s = 0.0\n",
+    )
+    .unwrap();
     run_orb(seed, &no_aid, &["--sequential", "--config", s(&cfg)]);
     let gt = poses(&data.join("uav/gt.txt"));
-    let (with, without) = (
-        poses(&base.out.join("trajectory.tum")),
-        poses(&no_aid.join("trajectory.tum")),
-    );
-    assert_eq!(with.len(), without.len(), "seed {seed}");
-    let mut z2 = [0.0, 0.0];
-    for (t, p) in &with {
-        let q = &without[t];
-        assert!(
-            (p[0] - q[0]).abs() < 1e-9 && (p[1] - q[1]).abs() < 1e-9,
-            "seed {seed}: x, y moved at {t}"
-        );
-        z2[0] += (p[2] - gt[t][2]).powi(2);
-        z2[1] += (q[2] - gt[t][2]).powi(2);
+    for file in ["trajectory.tum", "trajectory-final.tum"] {
+        let (with, without) = (poses(&base.out.join(file)), poses(&no_aid.join(file)));
+        assert_eq!(with.len(), without.len(), "seed {seed}, {file}");
+        let mut z2 = [0.0, 0.0];
+        for (t, p) in &with {
+            let q = &without[t];
+            assert!(
+                (p[0] - q[0]).abs() < 1e-9 && (p[1] - q[1]).abs() < 1e-9,
+                "seed {seed}, {file}: x, y moved at {t}"
+            );
+            z2[0] += (p[2] - gt[t][2]).powi(2);
+            z2[1] += (q[2] - gt[t][2]).powi(2);
+        }
+        let rms = |sum: f64| (sum / with.len() as f64).sqrt();
+        if file == "trajectory.tum" {
+            assert!(
+                z2[0] < z2[1],
+                "seed {seed}: z error with the altimeter aid {} >= without {}",
+                rms(z2[0]),
+                rms(z2[1])
+            );
+        } else {
+            assert!(
+                (rms(z2[0]) - rms(z2[1])).abs() > 1e-4,
+                "seed {seed}, {file}: z unmoved by the aid ({})",
+                rms(z2[0])
+            );
+        }
     }
-    assert!(
-        z2[0] < z2[1],
-        "seed {seed}: z error with the altimeter aid {} >= without {}",
-        (z2[0] / with.len() as f64).sqrt(),
-        (z2[1] / with.len() as f64).sqrt()
-    );
 }
 
 #[test]

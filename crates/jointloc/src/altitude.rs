@@ -16,6 +16,9 @@ use nalgebra::Point3;
 /// The recent frames' SLAM camera centres and altimeter readings.
 #[derive(Debug, Clone)]
 pub struct AltitudeFilter {
+    base_window_s: f64,
+    /// Factor on every window: longer at altitude and over a coarse elevation model.
+    scale: f64,
     window_s: f64,
     ground: Ground,
     recent: VecDeque<(f64, Point3<f64>, f64)>,
@@ -25,6 +28,8 @@ impl AltitudeFilter {
     /// A filter over the last `window_s` seconds (0: off) above `ground`.
     pub fn new(window_s: f64, ground: Ground) -> Self {
         Self {
+            base_window_s: window_s,
+            scale: 1.0,
             window_s,
             ground,
             recent: VecDeque::new(),
@@ -41,9 +46,16 @@ impl AltitudeFilter {
         self.window_s
     }
 
-    /// Sets the window (the readings already held are kept; the next push trims them).
-    pub fn set_window_s(&mut self, window_s: f64) {
-        self.window_s = window_s;
+    /// Scales the window by `scale` (the readings already held are kept; the next push trims
+    /// them).
+    pub fn set_scale(&mut self, scale: f64) {
+        self.scale = scale;
+        self.window_s = self.base_window_s * scale;
+    }
+
+    /// Another window, `base_s` seconds as given, scaled as this one is now.
+    pub fn scaled(&self, base_s: f64) -> f64 {
+        base_s * self.scale
     }
 
     /// Forgets every frame (tracking lost: the SLAM frame may change).

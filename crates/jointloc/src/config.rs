@@ -59,6 +59,12 @@ pub struct JointLocConfig {
     /// Reported z: shifted by the mean of `ground + altimeter − z` over the last this-many
     /// seconds of tracked frames (see [`crate::altitude`]); 0: z from the alignment alone.
     pub altitude_window_s: f64,
+    /// The same aid for the outputs written at the end (`trajectory-final.tum`): the mean
+    /// over this many seconds centred on each pose, from the final poses (scaled with the
+    /// altitude and the elevation model's σ as `altitude_window_s`); 0: off. Centred on final
+    /// poses it does not lag as a trailing window would online: 30 s measured best of
+    /// 5 / 30 / 60 / 120 on six development flights (`docs/jointloc.md` §"z at the end").
+    pub final_altitude_window_s: f64,
     /// World (x, y) of the take-off, metres, if known (e.g. the lander's position): the first
     /// absolute search starts from the tiles nearest to it instead of the whole map (a
     /// whole-map search with 8 rotation hypotheses takes seconds). `None`: whole map.
@@ -143,6 +149,7 @@ impl Default for JointLocConfig {
             reference_altitude_m: 10.0,
             alignment_window: 20,
             altitude_window_s: 5.0,
+            final_altitude_window_s: 30.0,
             start_position: None,
             sweep_after_failures: 2,
             sweep_after_failures_aligned: 10,
@@ -233,6 +240,12 @@ impl JointLocConfig {
             (
                 "altitude_window_s",
                 self.altitude_window_s,
+                true,
+                "must be finite and >= 0",
+            ),
+            (
+                "final_altitude_window_s",
+                self.final_altitude_window_s,
                 true,
                 "must be finite and >= 0",
             ),

@@ -218,7 +218,7 @@ impl JointLoc {
             &frame_poses,
             &readings,
             self.altitude.ground(),
-            self.altitude.window_s(),
+            self.altitude.scaled(self.config.final_altitude_window_s),
             &stamps,
         );
         for (p, dz) in poses.iter_mut().zip(shifts) {
