@@ -19,7 +19,6 @@ pub struct AltitudeFilter {
     base_window_s: f64,
     /// Factor on every window: longer at altitude and over a coarse elevation model.
     scale: f64,
-    window_s: f64,
     ground: Ground,
     recent: VecDeque<(f64, Point3<f64>, f64)>,
 }
@@ -30,7 +29,6 @@ impl AltitudeFilter {
         Self {
             base_window_s: window_s,
             scale: 1.0,
-            window_s,
             ground,
             recent: VecDeque::new(),
         }
@@ -43,14 +41,13 @@ impl AltitudeFilter {
 
     /// Seconds of frames the estimate averages over (0: off).
     pub fn window_s(&self) -> f64 {
-        self.window_s
+        self.scaled(self.base_window_s)
     }
 
     /// Scales the window by `scale` (the readings already held are kept; the next push trims
     /// them).
     pub fn set_scale(&mut self, scale: f64) {
         self.scale = scale;
-        self.window_s = self.base_window_s * scale;
     }
 
     /// Another window, `base_s` seconds as given, scaled as this one is now.
@@ -65,14 +62,15 @@ impl AltitudeFilter {
 
     /// Records a tracked frame: its time, SLAM camera centre and altimeter reading.
     pub fn push(&mut self, timestamp: f64, slam_centre: Point3<f64>, altitude: f64) {
-        if self.window_s <= 0.0 || !altitude.is_finite() {
+        let window_s = self.window_s();
+        if window_s <= 0.0 || !altitude.is_finite() {
             return;
         }
         self.recent.push_back((timestamp, slam_centre, altitude));
         while self
             .recent
             .front()
-            .is_some_and(|&(t, _, _)| t < timestamp - self.window_s)
+            .is_some_and(|&(t, _, _)| t < timestamp - window_s)
         {
             self.recent.pop_front();
         }
