@@ -10,40 +10,22 @@ used fixes). One similarity is fitted (Umeyama) from the VO's ground points unde
 axis at the altimeter range (`DATASET/uav/altimeter.txt`, in SLAM units through the fitted
 scale, iterated) to the fixes' ground points; fixes whose residual exceeds 3 × the median +
 5 cm are dropped and the fit repeated. Prints the world-frame APE rmse of every VO pose
-against `DATASET/uav/gt.txt`. Needs numpy.
+against `DATASET/uav/gt.txt`. Needs numpy; uses `../ape_breakdown.py` (Umeyama, quaternions)
+and `../2026-12-05-coarse-first/fix_errors.py` (the file reader).
 """
+import os
 import sys
 
 import numpy as np
 
-
-def rows(path):
-    for line in open(path):
-        if line.startswith("#") or not line.strip():
-            continue
-        yield [float(x) for x in line.split()]
+HERE = os.path.dirname(os.path.abspath(__file__))
+sys.path[:0] = [os.path.join(HERE, ".."), os.path.join(HERE, "..", "2026-12-05-coarse-first")]
+from ape_breakdown import quat_to_matrix, umeyama  # noqa: E402
+from fix_errors import rows  # noqa: E402
 
 
 def poses(path):
     return {round(v[0] * 1e3): np.array(v[1:8]) for v in rows(path)}
-
-
-def optical_axis(q):
-    x, y, z, w = q
-    return np.array([2 * (x * z + y * w), 2 * (y * z - x * w), 1 - 2 * (x * x + y * y)])
-
-
-def umeyama(src, dst):
-    """s, R, t with dst ≈ s R src + t (least squares)."""
-    ms, md = src.mean(0), dst.mean(0)
-    xs, xd = src - ms, dst - md
-    u, d, vt = np.linalg.svd(xd.T @ xs / len(src))
-    e = np.eye(3)
-    if np.linalg.det(u @ vt) < 0:
-        e[2, 2] = -1
-    r = u @ e @ vt
-    s = np.trace(np.diag(d) @ e) / ((xs**2).sum() / len(src))
-    return s, r, md - s * r @ ms
 
 
 def main(dataset, vo_path, fixes_path):
@@ -55,7 +37,7 @@ def main(dataset, vo_path, fixes_path):
     ranges = np.array([alt[k] for k in keys])
     ground = np.array([[v[1], v[2], v[3] - alt[round(v[0] * 1e3)]] for v in fixes])
     centres = np.array([vo[k][:3] for k in keys])
-    axes = np.array([optical_axis(vo[k][3:]) for k in keys])
+    axes = np.array([quat_to_matrix(vo[k][3:])[:, 2] for k in keys])
     s, r, t = umeyama(centres, ground + np.array([0.0, 0.0, 1.0]) * ranges[:, None])
     for _ in range(5):
         src = centres + axes * (ranges / s)[:, None]
