@@ -236,11 +236,20 @@ impl Fix {
     /// Camera-to-world rotation of a nadir camera with this heading (optical axis straight
     /// down, image x axis along the heading in the map): the absolute fix measures no tilt.
     pub fn orientation(&self) -> nalgebra::UnitQuaternion<f64> {
-        let (s, c) = self.heading.sin_cos();
-        // Map axes (u east, v south) to world (x east, y north): image x = (c, −s, 0).
-        let m = nalgebra::Matrix3::new(c, -s, 0.0, -s, -c, 0.0, 0.0, 0.0, -1.0);
-        nalgebra::UnitQuaternion::from_matrix(&m)
+        nadir_orientation(self.heading)
     }
+}
+
+/// Camera-to-world rotation of a nadir camera whose image x axis has `heading` in the map
+/// (the inverse of [`heading_from_rotation`] for a nadir view).
+pub fn nadir_orientation(heading: f64) -> nalgebra::UnitQuaternion<f64> {
+    let (s, c) = heading.sin_cos();
+    // Map axes (u east, v south) to world (x east, y north): image x = (c, −s, 0). The matrix
+    // is a rotation by construction; `UnitQuaternion::from_matrix` would instead iterate
+    // towards it from the identity, and a heading near ±180° (the matrix half a turn from the
+    // identity) came out turned by half a turn.
+    let m = nalgebra::Matrix3::new(c, -s, 0.0, -s, -c, 0.0, 0.0, 0.0, -1.0);
+    nalgebra::UnitQuaternion::from_rotation_matrix(&nalgebra::Rotation3::from_matrix_unchecked(m))
 }
 
 /// Why no fix was found.
@@ -1455,7 +1464,7 @@ impl AbsLocalizer {
             next_radius,
             ms: start.elapsed().as_secs_f64() * 1e3,
         };
-        tracing::debug!(?fix.position, fix.confidence, fix.tile, fix.inliers, fix.searched_tiles, "fix");
+        tracing::debug!(?fix.position, fix.heading, fix.confidence, fix.tile, fix.inliers, fix.searched_tiles, "fix");
         fix
     }
 
@@ -1667,5 +1676,34 @@ pub fn map_upsample_factor(expected: f64, min_match_scale: f64) -> f64 {
         factor
     } else {
         1.0
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::Vector3;
+
+    #[test]
+    fn the_nadir_orientation_has_its_heading_for_every_heading() {
+        for i in 0..720 {
+            let heading = -std::f64::consts::PI + (i as f64 + 0.5) * std::f64::consts::TAU / 720.0;
+            let q = nadir_orientation(heading);
+            let (s, c) = heading.sin_cos();
+            assert!(
+                (q * Vector3::x() - Vector3::new(c, -s, 0.0)).norm() < 1e-12,
+                "heading {heading}: x axis {:?}",
+                q * Vector3::x()
+            );
+            assert!(
+                (q * Vector3::z() + Vector3::z()).norm() < 1e-12,
+                "heading {heading}"
+            );
+            let back = heading_from_rotation(&q.to_rotation_matrix());
+            assert!(
+                (back - heading).abs() < 1e-12,
+                "{heading} came back as {back}"
+            );
+        }
     }
 }

@@ -297,7 +297,8 @@ mod tests {
     /// A nadir camera at `(x, y, z)` (image x east, image y south).
     fn nadir(x: f64, y: f64, z: f64) -> CameraToWorld {
         let m = nalgebra::Matrix3::new(1.0, 0.0, 0.0, 0.0, -1.0, 0.0, 0.0, 0.0, -1.0);
-        let q = UnitQuaternion::from_matrix(&m);
+        let q =
+            UnitQuaternion::from_rotation_matrix(&nalgebra::Rotation3::from_matrix_unchecked(m));
         CameraToWorld::from_rotation_translation(q, Vector3::new(x, y, z))
     }
 
