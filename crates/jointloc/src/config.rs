@@ -119,6 +119,14 @@ pub struct JointLocConfig {
     /// around it rather than over the whole map. Wrong whole-map fixes have scored up to
     /// w 0.19 on the flights measured, right ones under a near sun 0.37–0.50.
     pub strong_fix_confidence: f64,
+    /// Before the alignment, two successive one-fix similarities (SLAM → world) whose
+    /// rotations differ by more than this many degrees disagree on the heading: the SLAM turns
+    /// the map by a fraction of a degree between two fixes, so one of the two headings is
+    /// wrong, and the next search sweeps the headings instead of trusting the newer one
+    /// (0: never). At 100 m over gravel a search was made with a prior heading 167° off after
+    /// a right fix, and found a wrong place 138 m away (`docs/jointloc.md` §"A prior heading
+    /// that turns between two fixes").
+    pub provisional_turn_deg: f64,
     /// Seed of the alignment RANSAC.
     pub seed: u64,
     pub slam: SystemConfig,
@@ -159,6 +167,7 @@ impl Default for JointLocConfig {
             max_altitude_rate_mps: 15.0,
             first_fix_span_m: 20.0,
             strong_fix_confidence: 0.25,
+            provisional_turn_deg: 30.0,
             seed: 0,
             slam: SystemConfig::default(),
             absloc: AbsLocConfig::default(),
@@ -272,6 +281,12 @@ impl JointLocConfig {
                 self.strong_fix_confidence,
                 true,
                 "must be finite and >= 0",
+            ),
+            (
+                "provisional_turn_deg",
+                self.provisional_turn_deg,
+                true,
+                "must be finite and >= 0 (0: never)",
             ),
             (
                 "max_altitude_rate_mps",

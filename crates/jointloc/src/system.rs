@@ -78,6 +78,9 @@ pub struct JointLoc {
     /// Whether the fix that made `provisional` had at least
     /// [`JointLocConfig::strong_fix_confidence`] (see [`Self::moves_provisional`]).
     provisional_strong: bool,
+    /// Whether the provisional similarity's heading agrees with the one before it (see
+    /// [`JointLocConfig::provisional_turn_deg`]); the search prior leaves it out when not.
+    provisional_heading_agrees: bool,
     /// Absolute searches failed since the last fix (see
     /// [`JointLocConfig::sweep_after_failures`]).
     failures_in_a_row: usize,
@@ -186,6 +189,7 @@ impl JointLoc {
             alignment: None,
             provisional: None,
             provisional_strong: false,
+            provisional_heading_agrees: true,
             failures_in_a_row: 0,
             timing: FusionTiming::default(),
             altitude,
@@ -534,6 +538,7 @@ impl JointLoc {
         self.alignment = None;
         self.provisional = None;
         self.provisional_strong = false;
+        self.provisional_heading_agrees = true;
         self.first_world_timestamp = None;
         self.altitude.clear();
         self.lost_since = None;
@@ -593,6 +598,13 @@ impl JointLoc {
         {
             let rotation = fix.orientation() * pose.rotation().inverse();
             let centre = nalgebra::Vector3::from(fix.position);
+            tracing::debug!(
+                frame = submitted.frame,
+                fix_heading = fix.heading,
+                slam_rotation = ?pose.rotation().euler_angles(),
+                "provisional similarity from a fix"
+            );
+            self.provisional_heading_agrees = self.heading_agrees(&rotation);
             self.provisional = Some(Sim3 {
                 scale: 1.0,
                 rotation,
@@ -663,8 +675,26 @@ impl JointLoc {
         off <= bound
     }
 
-    /// No world pose yet, no alignment and no take-off position: nothing but the fixes says
-    /// where the flight is.
+    /// Whether a new one-fix similarity with `rotation` (SLAM → world) turns the map by no
+    /// more than [`JointLocConfig::provisional_turn_deg`] from the provisional one it replaces
+    /// (true when there is none or the rule is off).
+    fn heading_agrees(&self, rotation: &nalgebra::UnitQuaternion<f64>) -> bool {
+        let max = self.config.provisional_turn_deg;
+        let Some(previous) = &self.provisional else {
+            return true;
+        };
+        let turn = rotation.angle_to(&previous.rotation).to_degrees();
+        if max > 0.0 && turn > max {
+            tracing::debug!(
+                turn_deg = turn,
+                max_deg = max,
+                "two fixes disagree on the heading: the next search sweeps the headings"
+            );
+            return false;
+        }
+        true
+    }
+
     /// Whether the latest fix that went into the fusion has at least
     /// [`JointLocConfig::strong_fix_confidence`]: before the first world pose, the next
     /// virtual frame is then searched around it (a confirmation must be as strong, see
@@ -677,6 +707,8 @@ impl JointLoc {
             .is_some_and(|r| r.confidence >= self.config.strong_fix_confidence)
     }
 
+    /// No world pose yet, no alignment and no take-off position: nothing but the fixes says
+    /// where the flight is.
     pub(crate) fn unanchored(&self) -> bool {
         self.alignment.is_none()
             && self.last_world_pose.is_none()
@@ -727,6 +759,7 @@ impl JointLoc {
         };
         // A stale heading is a guess: the UAV may have turned while it was not tracked.
         let trust_heading = carried.is_none()
+            && (from_last_world_pose || self.provisional_heading_agrees)
             && every != 0
             && (self.failures_in_a_row == 0 || !self.failures_in_a_row.is_multiple_of(every));
         match predicted {

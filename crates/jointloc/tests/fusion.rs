@@ -200,6 +200,97 @@ fn a_weak_far_fix_before_the_alignment_does_not_steer_the_searches() {
     assert!(e < 0.3, "online rmse {e:.3} m");
 }
 
+/// Each search's time and prior heading, as a source saw them.
+type PriorLog = Arc<Mutex<Vec<(f64, Option<f64>)>>>;
+
+/// Fixes from the ground truth, one of them (the `flip_at`-th request) with its heading
+/// turned by 167° (its position right), as seen at 100 m over gravel; records each request's
+/// time and prior heading.
+#[derive(Debug)]
+struct HeadingFlip {
+    truth: TruthFixes,
+    requests: usize,
+    flip_at: usize,
+    priors: PriorLog,
+}
+
+impl jointloc_system::FixSource for HeadingFlip {
+    fn localize(
+        &mut self,
+        request: &jointloc_system::FixRequest<'_>,
+    ) -> Result<Option<jointloc_system::Located>, jointloc_absloc::AbslocError> {
+        self.requests += 1;
+        self.priors
+            .lock()
+            .unwrap()
+            .push((request.timestamp, request.prior.heading));
+        let mut located = self.truth.localize(request)?;
+        if let Some(jointloc_system::Located {
+            outcome: jointloc_absloc::Outcome::Fix(fix),
+            ..
+        }) = located.as_mut()
+            && self.requests == self.flip_at
+        {
+            fix.heading += 167f64.to_radians();
+        }
+        Ok(located)
+    }
+}
+
+/// Before the alignment, a fix whose heading disagrees with the provisional similarity's by
+/// far does not hand its heading to the next search (which sweeps the headings instead);
+/// with consistent fixes every search before it had the true heading.
+#[test]
+fn a_fix_that_turns_the_heading_leaves_the_next_search_without_one() {
+    let truth_heading = |t: f64| {
+        let gt = ground_truth(flight());
+        let i = gt
+            .timestamps
+            .iter()
+            .position(|&s| (s - t).abs() < 1e-3)
+            .unwrap();
+        jointloc_absloc::heading_from_rotation(&gt.poses[i].rotation().to_rotation_matrix())
+    };
+    let off_deg = |a: f64, b: f64| {
+        let d = (a - b).rem_euclid(std::f64::consts::TAU);
+        d.min(std::f64::consts::TAU - d).to_degrees()
+    };
+    let run_with = |turn_deg: f64| {
+        let config = JointLocConfig {
+            provisional_turn_deg: turn_deg,
+            ..JointLocConfig::default()
+        };
+        let priors = Arc::new(Mutex::new(Vec::new()));
+        let source = HeadingFlip {
+            truth: TruthFixes::new(flight(), 0.02, 6),
+            requests: 0,
+            flip_at: 3,
+            priors: priors.clone(),
+        };
+        let (_, outputs) = run(builder(flight(), config.clone(), source), &config);
+        let priors = priors.lock().unwrap().clone();
+        (priors, outputs)
+    };
+    let (priors, outputs) = run_with(JointLocConfig::default().provisional_turn_deg);
+    // The second request's prior comes from the first tied fix: the true heading.
+    let (t, h) = priors[2];
+    assert!(
+        off_deg(h.expect("a heading"), truth_heading(t)) < 5.0,
+        "{priors:?}"
+    );
+    // The fourth comes after the turned fix: no heading.
+    assert_eq!(priors[3].1, None, "{priors:?}");
+    let e = rmse(&ground_truth(flight()), &online(&outputs));
+    assert!(e < 0.3, "online rmse {e:.3} m");
+    // Without the rule the fourth search would look 167° off.
+    let (priors, _) = run_with(0.0);
+    let (t, h) = priors[3];
+    assert!(
+        off_deg(h.expect("a heading"), truth_heading(t)) > 150.0,
+        "{priors:?}"
+    );
+}
+
 #[test]
 fn an_outage_is_counted_and_the_slam_carries_the_poses_through_it() {
     let mut config = JointLocConfig::default();
