@@ -9,6 +9,7 @@ pub mod pnp;
 pub mod pose;
 pub mod ransac;
 pub mod robust;
+pub mod rotation;
 pub mod trajectory;
 pub mod triangulation;
 pub mod two_view;

@@ -5,9 +5,10 @@
 //! moves to the destination camera frame as `X₂ = R X₁ + t`, hence
 //! `X₂ = (R + t nᵀ/d) X₁` and the pixel homography is `H ∝ K (R + t nᵀ/d) K⁻¹`.
 
-use nalgebra::{Matrix3, Rotation3, UnitQuaternion, Vector3};
+use nalgebra::{Matrix3, UnitQuaternion, Vector3};
 
 use crate::error::{GeometryError, Result};
+use crate::rotation::nearest_rotation;
 
 /// One motion/plane interpretation of a homography.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -68,7 +69,9 @@ pub fn decompose_homography(h: &Matrix3<f64>, k: &Matrix3<f64>) -> Result<Vec<Ho
     let s1 = (sv[0] / sv[1]).powi(2);
     let s3 = (sv[2] / sv[1]).powi(2);
     if s1 - s3 < PURE_ROTATION {
-        let r = Rotation3::from_matrix(&he);
+        let r = nearest_rotation(&he).ok_or_else(|| {
+            GeometryError::Degenerate("homography has no nearest rotation".into())
+        })?;
         return Ok(vec![HomographyMotion {
             rotation: UnitQuaternion::from_rotation_matrix(&r),
             translation: Vector3::zeros(),
@@ -89,7 +92,10 @@ pub fn decompose_homography(h: &Matrix3<f64>, k: &Matrix3<f64>) -> Result<Vec<Ho
         let image = Matrix3::from_columns(&[hv2, hu, hv2.cross(&hu)]);
         let r = image * basis.transpose();
         let t = (he - r) * n;
-        let rotation = UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix(&r));
+        let Some(rotation) = nearest_rotation(&r) else {
+            continue;
+        };
+        let rotation = UnitQuaternion::from_rotation_matrix(&rotation);
         for sign in [1.0, -1.0] {
             out.push(HomographyMotion {
                 rotation,
