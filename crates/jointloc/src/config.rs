@@ -119,6 +119,14 @@ pub struct JointLocConfig {
     /// around it rather than over the whole map. Wrong whole-map fixes have scored up to
     /// w 0.19 on the flights measured, right ones under a near sun 0.37–0.50.
     pub strong_fix_confidence: f64,
+    /// An alignment whose inlier fixes are all weak (below `strong_fix_confidence`) and whose
+    /// newest inlier is older than this many seconds is dropped: the world poses stop, the
+    /// fixes that made it and the search prior go, and the next fixes geo-reference the map
+    /// again (0: never). Right fixes keep confirming an alignment (one search in 10 frames,
+    /// most of them found even under a reversed sun); on a 10 m flight over mountains under a
+    /// sun 173° away three weak wrong fixes and none after them put 1321 world poses 56 m off
+    /// (`docs/jointloc.md` §"A wrong place despite --start").
+    pub unconfirmed_weak_alignment_s: f64,
     /// Before the alignment, two successive one-fix similarities (SLAM → world) whose
     /// rotations differ by more than this many degrees disagree on the heading: the SLAM turns
     /// the map by a fraction of a degree between two fixes, so one of the two headings is
@@ -167,6 +175,7 @@ impl Default for JointLocConfig {
             max_altitude_rate_mps: 15.0,
             first_fix_span_m: 20.0,
             strong_fix_confidence: 0.25,
+            unconfirmed_weak_alignment_s: 30.0,
             provisional_turn_deg: 30.0,
             seed: 0,
             slam: SystemConfig::default(),
@@ -285,6 +294,12 @@ impl JointLocConfig {
             (
                 "provisional_turn_deg",
                 self.provisional_turn_deg,
+                true,
+                "must be finite and >= 0 (0: never)",
+            ),
+            (
+                "unconfirmed_weak_alignment_s",
+                self.unconfirmed_weak_alignment_s,
                 true,
                 "must be finite and >= 0 (0: never)",
             ),

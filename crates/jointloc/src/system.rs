@@ -110,6 +110,9 @@ pub struct JointLoc {
     /// Time of the first frame of the current map reported in the world frame: the outputs
     /// written at the end start there too.
     pub(crate) first_world_timestamp: Option<f64>,
+    /// When every inlier of the current alignment is weak: the time of its newest inlier fix
+    /// (see [`JointLocConfig::unconfirmed_weak_alignment_s`]).
+    pub(crate) alignment_weak_since: Option<f64>,
     /// Since when tracking has been lost (see [`JointLocConfig::new_map_after_lost_s`]).
     lost_since: Option<f64>,
     /// The world-frame trajectories of the maps set aside after a loss, as known then.
@@ -205,6 +208,7 @@ impl JointLoc {
             last_world_pose: None,
             ground_track: GroundTrack::default(),
             first_world_timestamp: None,
+            alignment_weak_since: None,
             lost_since: None,
             earlier_maps: Vec::new(),
             loops_closed: 0,
@@ -442,6 +446,7 @@ impl JointLoc {
             (None, _) => self.altitude.clear(),
             _ => {}
         }
+        self.drop_unconfirmed_weak_alignment(timestamp);
         let world_pose = match (&self.alignment, r.pose) {
             (Some(a), Some(p)) => {
                 let mut pose = a.sim3.transform_pose(&p);
@@ -487,6 +492,38 @@ impl JointLoc {
             .push(done.duration_since(start).as_secs_f64() * 1e3);
         self.last_done_at = Some(done);
         Ok(frame)
+    }
+
+    /// Drops an alignment made of weak fixes only that no fix has confirmed for
+    /// [`JointLocConfig::unconfirmed_weak_alignment_s`]: its world poses stop, and its ties,
+    /// the search prior and the terrain correction it made go with it.
+    fn drop_unconfirmed_weak_alignment(&mut self, timestamp: f64) {
+        let limit = self.config.unconfirmed_weak_alignment_s;
+        let Some(newest) = self.alignment_weak_since else {
+            return;
+        };
+        if limit <= 0.0 || self.alignment.is_none() || timestamp - newest <= limit {
+            return;
+        }
+        tracing::warn!(
+            unconfirmed_s = timestamp - newest,
+            ties = self.ties.len(),
+            "an alignment of weak fixes only, unconfirmed: dropped, no world pose until new fixes"
+        );
+        self.alignment = None;
+        self.alignment_weak_since = None;
+        self.slam.set_slam_to_world(None);
+        self.slam.set_global_fixes(Default::default());
+        self.ties.clear();
+        for r in &mut self.fixes {
+            r.inlier = false;
+        }
+        self.terrain = TerrainCorrection::default();
+        self.forget_provisional();
+        self.last_world_pose = None;
+        self.ground_track = GroundTrack::default();
+        self.first_world_timestamp = None;
+        self.altitude.clear();
     }
 
     /// Sets the SLAM map aside after [`JointLocConfig::new_map_after_lost_s`] of lost tracking:
@@ -536,9 +573,8 @@ impl JointLoc {
             merge,
         });
         self.alignment = None;
-        self.provisional = None;
-        self.provisional_strong = false;
-        self.provisional_heading_agrees = true;
+        self.alignment_weak_since = None;
+        self.forget_provisional();
         self.first_world_timestamp = None;
         self.altitude.clear();
         self.lost_since = None;
@@ -673,6 +709,14 @@ impl JointLoc {
             );
         }
         off <= bound
+    }
+
+    /// No provisional similarity: the next searches before the alignment start from the
+    /// last world pose or the take-off position.
+    pub(crate) fn forget_provisional(&mut self) {
+        self.provisional = None;
+        self.provisional_strong = false;
+        self.provisional_heading_agrees = true;
     }
 
     /// Whether a new one-fix similarity with `rotation` (SLAM → world) turns the map by no

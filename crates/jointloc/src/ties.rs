@@ -154,6 +154,16 @@ impl JointLoc {
         }
         self.slam.set_global_fixes(per_kf);
         self.slam.set_slam_to_world(Some(s));
+        let strong = self.config.strong_fix_confidence;
+        let inliers = fitted
+            .inlier_fixes
+            .iter()
+            .map(|&i| &self.fixes[self.ties[i].record]);
+        self.alignment_weak_since = if inliers.clone().all(|r| r.confidence < strong) {
+            inliers.map(|r| r.timestamp).reduce(f64::max)
+        } else {
+            None
+        };
         self.alignment = Some(fitted);
         self.correct_by_terrain(first);
         if self.merge_earlier_maps(false) {

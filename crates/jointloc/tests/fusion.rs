@@ -291,6 +291,89 @@ fn a_fix_that_turns_the_heading_leaves_the_next_search_without_one() {
     );
 }
 
+/// Fixes from the ground truth moved by `offset_m` in x, with `confidence`, for the first
+/// `found` searches; every later search fails (a place the matcher no longer finds).
+#[derive(Debug)]
+struct FewFixes {
+    truth: TruthFixes,
+    requests: usize,
+    found: usize,
+    offset_m: f64,
+    confidence: f64,
+}
+
+impl jointloc_system::FixSource for FewFixes {
+    fn localize(
+        &mut self,
+        request: &jointloc_system::FixRequest<'_>,
+    ) -> Result<Option<jointloc_system::Located>, jointloc_absloc::AbslocError> {
+        self.requests += 1;
+        let mut located = self.truth.localize(request)?;
+        if let Some(jointloc_system::Located { outcome, .. }) = located.as_mut() {
+            if self.requests > self.found {
+                *outcome = jointloc_absloc::Outcome::Failed(jointloc_absloc::Failure {
+                    reason: jointloc_absloc::FailureReason::NoMatch { best: None },
+                    searched_tiles: 1,
+                    global: false,
+                    next_radius: 1,
+                    ms: 0.0,
+                });
+            } else if let jointloc_absloc::Outcome::Fix(fix) = outcome {
+                fix.position[0] += self.offset_m;
+                fix.confidence = self.confidence;
+            }
+        }
+        Ok(located)
+    }
+}
+
+/// An alignment of weak fixes only that no later fix confirms stops giving world poses after
+/// `unconfirmed_weak_alignment_s`; one with strong fixes is kept through the same gap.
+#[test]
+fn an_unconfirmed_alignment_of_weak_fixes_is_dropped() {
+    let run_with = |limit: f64, confidence: f64| {
+        let config = JointLocConfig {
+            unconfirmed_weak_alignment_s: limit,
+            ..JointLocConfig::default()
+        };
+        let source = FewFixes {
+            truth: TruthFixes::new(flight(), 0.05, 9),
+            requests: 0,
+            found: 6,
+            offset_m: 30.0,
+            confidence,
+        };
+        run(builder(flight(), config.clone(), source), &config).1
+    };
+    let world = |outputs: &Outputs| -> Vec<f64> {
+        outputs
+            .online
+            .iter()
+            .filter(|f| f.world_pose().is_some())
+            .map(|f| f.timestamp)
+            .collect()
+    };
+    // Six searches: fixes up to 10 s; the last world pose 10 s after the newest inlier.
+    let outputs = run_with(10.0, 0.1);
+    let dropped = world(&outputs);
+    assert!(!dropped.is_empty());
+    let last = dropped.last().copied().unwrap();
+    assert!((15.0..=21.0).contains(&last), "last world pose at {last} s");
+    assert_eq!(
+        outputs.summary.fixes_inliers, 0,
+        "the dropped fixes are no inliers"
+    );
+    // The same weak fixes without the rule, and strong ones with it: world poses to the end.
+    for (limit, confidence) in [(0.0, 0.1), (10.0, 0.5)] {
+        let kept = world(&run_with(limit, confidence));
+        let last = kept.last().copied().unwrap_or(0.0);
+        assert!(
+            last > 39.0,
+            "limit {limit}, w {confidence}: last world pose at {last} s"
+        );
+    }
+}
+
 #[test]
 fn an_outage_is_counted_and_the_slam_carries_the_poses_through_it() {
     let mut config = JointLocConfig::default();
