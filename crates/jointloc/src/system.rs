@@ -110,9 +110,6 @@ pub struct JointLoc {
     /// Time of the first frame of the current map reported in the world frame: the outputs
     /// written at the end start there too.
     pub(crate) first_world_timestamp: Option<f64>,
-    /// When every inlier of the current alignment is weak: the time of its newest inlier fix
-    /// (see [`JointLocConfig::unconfirmed_weak_alignment_s`]).
-    pub(crate) alignment_weak_since: Option<f64>,
     /// Since when tracking has been lost (see [`JointLocConfig::new_map_after_lost_s`]).
     lost_since: Option<f64>,
     /// The world-frame trajectories of the maps set aside after a loss, as known then.
@@ -208,7 +205,6 @@ impl JointLoc {
             last_world_pose: None,
             ground_track: GroundTrack::default(),
             first_world_timestamp: None,
-            alignment_weak_since: None,
             lost_since: None,
             earlier_maps: Vec::new(),
             loops_closed: 0,
@@ -499,10 +495,10 @@ impl JointLoc {
     /// the search prior and the terrain correction it made go with it.
     fn drop_unconfirmed_weak_alignment(&mut self, timestamp: f64) {
         let limit = self.config.unconfirmed_weak_alignment_s;
-        let Some(newest) = self.alignment_weak_since else {
+        let Some(newest) = self.newest_inlier_if_all_weak() else {
             return;
         };
-        if limit <= 0.0 || self.alignment.is_none() || timestamp - newest <= limit {
+        if limit <= 0.0 || timestamp - newest <= limit {
             return;
         }
         tracing::warn!(
@@ -511,7 +507,6 @@ impl JointLoc {
             "an alignment of weak fixes only, unconfirmed: dropped, no world pose until new fixes"
         );
         self.alignment = None;
-        self.alignment_weak_since = None;
         self.slam.set_slam_to_world(None);
         self.slam.set_global_fixes(Default::default());
         self.ties.clear();
@@ -573,7 +568,6 @@ impl JointLoc {
             merge,
         });
         self.alignment = None;
-        self.alignment_weak_since = None;
         self.forget_provisional();
         self.first_world_timestamp = None;
         self.altitude.clear();

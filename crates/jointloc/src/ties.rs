@@ -154,21 +154,29 @@ impl JointLoc {
         }
         self.slam.set_global_fixes(per_kf);
         self.slam.set_slam_to_world(Some(s));
-        let strong = self.config.strong_fix_confidence;
-        let inliers = fitted
-            .inlier_fixes
-            .iter()
-            .map(|&i| &self.fixes[self.ties[i].record]);
-        self.alignment_weak_since = if inliers.clone().all(|r| r.confidence < strong) {
-            inliers.map(|r| r.timestamp).reduce(f64::max)
-        } else {
-            None
-        };
         self.alignment = Some(fitted);
         self.correct_by_terrain(first);
         if self.merge_earlier_maps(false) {
             self.refit();
         }
+    }
+
+    /// When every inlier fix of the current alignment is weak (below
+    /// [`crate::JointLocConfig::strong_fix_confidence`]): the time of the newest (see
+    /// [`crate::JointLocConfig::unconfirmed_weak_alignment_s`]). `None` without an alignment
+    /// or with a strong inlier.
+    pub(crate) fn newest_inlier_if_all_weak(&self) -> Option<f64> {
+        let strong = self.config.strong_fix_confidence;
+        let inliers = self
+            .alignment
+            .as_ref()?
+            .inlier_fixes
+            .iter()
+            .map(|&i| &self.fixes[self.ties[i].record]);
+        if inliers.clone().any(|r| r.confidence >= strong) {
+            return None;
+        }
+        inliers.map(|r| r.timestamp).reduce(f64::max)
     }
 
     /// Whether a first alignment may rest on `fitted`'s inlier fixes: always, unless the
