@@ -292,13 +292,10 @@ fn footprint_box(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use nalgebra::UnitQuaternion;
 
     /// A nadir camera at `(x, y, z)` (image x east, image y south).
     fn nadir(x: f64, y: f64, z: f64) -> CameraToWorld {
-        let m = nalgebra::Matrix3::new(1.0, 0.0, 0.0, 0.0, -1.0, 0.0, 0.0, 0.0, -1.0);
-        let q =
-            UnitQuaternion::from_rotation_matrix(&nalgebra::Rotation3::from_matrix_unchecked(m));
+        let q = crate::localizer::nadir_orientation(0.0);
         CameraToWorld::from_rotation_translation(q, Vector3::new(x, y, z))
     }
 
