@@ -5,7 +5,7 @@ mod common;
 
 use std::sync::{Arc, Mutex, OnceLock};
 
-use common::{TruthFixes, builder, flight, frames, ground_truth, online, rmse};
+use common::{TruthFixes, builder, flight, frames, ground_truth, no_match, online, pose_at, rmse};
 use jointloc_formats::outputs::{read_fixes, read_online_tum};
 use jointloc_system::faults::BlindCamera;
 use jointloc_system::{
@@ -151,11 +151,7 @@ impl jointloc_system::FixSource for WrongPlaceNearPrior {
     ) -> Result<Option<jointloc_system::Located>, jointloc_absloc::AbslocError> {
         self.requests += 1;
         let mut located = self.truth.localize(request)?;
-        let i = self
-            .gt
-            .timestamps
-            .iter()
-            .position(|&t| (t - request.timestamp).abs() < 1e-3);
+        let i = pose_at(&self.gt, request.timestamp);
         let far_prior = match (i, request.prior.position) {
             (Some(i), Some([x, y])) => {
                 let c = self.gt.poses[i].centre();
@@ -244,11 +240,7 @@ impl jointloc_system::FixSource for HeadingFlip {
 fn a_fix_that_turns_the_heading_leaves_the_next_search_without_one() {
     let truth_heading = |t: f64| {
         let gt = ground_truth(flight());
-        let i = gt
-            .timestamps
-            .iter()
-            .position(|&s| (s - t).abs() < 1e-3)
-            .unwrap();
+        let i = pose_at(&gt, t).unwrap();
         jointloc_absloc::heading_from_rotation(&gt.poses[i].rotation().to_rotation_matrix())
     };
     let off_deg = |a: f64, b: f64| {
@@ -311,13 +303,7 @@ impl jointloc_system::FixSource for FewFixes {
         let mut located = self.truth.localize(request)?;
         if let Some(jointloc_system::Located { outcome, .. }) = located.as_mut() {
             if self.requests > self.found {
-                *outcome = jointloc_absloc::Outcome::Failed(jointloc_absloc::Failure {
-                    reason: jointloc_absloc::FailureReason::NoMatch { best: None },
-                    searched_tiles: 1,
-                    global: false,
-                    next_radius: 1,
-                    ms: 0.0,
-                });
+                *outcome = no_match();
             } else if let jointloc_absloc::Outcome::Fix(fix) = outcome {
                 fix.position[0] += self.offset_m;
                 fix.confidence = self.confidence;

@@ -37,6 +37,24 @@ pub fn ground_truth(dir: &Path) -> Trajectory {
     Trajectory::read_tum(dir.join("uav/gt.txt"), &TumOptions::default()).unwrap()
 }
 
+/// The index of the ground-truth pose at `timestamp` (to 1 ms).
+pub fn pose_at(gt: &Trajectory, timestamp: f64) -> Option<usize> {
+    gt.timestamps
+        .iter()
+        .position(|&t| (t - timestamp).abs() < 1e-3)
+}
+
+/// A search that found no tile.
+pub fn no_match() -> Outcome {
+    Outcome::Failed(Failure {
+        reason: FailureReason::NoMatch { best: None },
+        searched_tiles: 1,
+        global: false,
+        next_radius: 1,
+        ms: 0.0,
+    })
+}
+
 /// Fixes measured from the ground truth: the map point under the image centre, with
 /// Gaussian noise of `sigma_m` on x and y (seeded), the true heading and confidence 0.5;
 /// a frame without ground truth fails.
@@ -61,21 +79,9 @@ impl TruthFixes {
 
 impl FixSource for TruthFixes {
     fn localize(&mut self, request: &FixRequest<'_>) -> Result<Option<Located>, AbslocError> {
-        let i = self
-            .gt
-            .timestamps
-            .iter()
-            .position(|&t| (t - request.timestamp).abs() < 1e-3);
-        let Some(i) = i else {
-            let failure = Failure {
-                reason: FailureReason::NoMatch { best: None },
-                searched_tiles: 1,
-                global: false,
-                next_radius: 1,
-                ms: 0.0,
-            };
+        let Some(i) = pose_at(&self.gt, request.timestamp) else {
             return Ok(Some(Located {
-                outcome: Outcome::Failed(failure),
+                outcome: no_match(),
                 injected: false,
             }));
         };
