@@ -1,9 +1,9 @@
-"""Prints the README's benchmark table from a committed `jointloc bench` report.
+"""Prints the benchmark table of docs/status.md from a committed `jointloc bench` report.
 
 Usage: python3 docs/benchmarks/readme_rows.py docs/benchmarks/<run>/report.md
 
 Every cell is copied verbatim from the report's Table VI (APE rmse in metres, mean ± std over
-seeds; JointLoc rate in Hz), so README numbers are never typed by hand.
+seeds; JointLoc rate in Hz), so those numbers are never typed by hand.
 """
 
 import sys

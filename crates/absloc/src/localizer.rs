@@ -49,7 +49,7 @@ pub struct AbsLocConfig {
     /// only cost time (7× on medium maps, where a low confidence opens the whole map).
     pub inner_tiles_first: bool,
     /// Resample the frame to the map's GSD before matching (off: native scale, as the
-    /// reference code). Measured better (see the crate README figures), so on by default.
+    /// reference code). Measured better (`docs/absloc.md` §"Coarse maps"), so on by default.
     pub scale_normalisation: bool,
     /// Angles tried when no heading is known (start, after a failure): 8 gives ≤ 22.5° of
     /// residual rotation.
