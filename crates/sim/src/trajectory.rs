@@ -55,6 +55,10 @@ pub struct TrajectoryConfig {
     /// Angle from the flight direction to the image "up" direction, counter-clockwise seen
     /// from above (0: the image top looks ahead).
     pub yaw_offset_deg: f64,
+    /// A constant tilt of the camera away from nadir, `[about image x, about image y]`
+    /// degrees, under the jitter: a body-fixed camera on a UAV pitched to cruise, or mounted
+    /// off nadir. A tilt about image x moves the view along the track. 0: nadir on average.
+    pub camera_tilt_deg: [f64; 2],
 }
 
 impl Default for TrajectoryConfig {
@@ -74,6 +78,7 @@ impl Default for TrajectoryConfig {
             attitude_jitter_deg: 0.5,
             jitter_period_s: [1.5, 8.0],
             yaw_offset_deg: 0.0,
+            camera_tilt_deg: [0.0, 0.0],
         }
     }
 }
@@ -134,6 +139,17 @@ impl TrajectoryConfig {
                     reason: "needs 0 < min ≤ max".into(),
                 });
             }
+        }
+        if let Some(t) = self
+            .camera_tilt_deg
+            .iter()
+            .find(|t| !(t.is_finite() && t.abs() < 45.0))
+        {
+            return Err(invalid(
+                "trajectory.camera_tilt_deg",
+                *t,
+                "each angle must be finite and within ±45°",
+            ));
         }
         if !self.yaw_offset_deg.is_finite() {
             return Err(invalid(
@@ -497,6 +513,8 @@ pub fn fly(
         .map(|_| SmoothNoise::with_sigma(&mut rng, 4, cfg.jitter_period_s, sigma))
         .collect();
     let ground_level = smoothed_ground(path, ground, cfg);
+    let [tx, ty] = cfg.camera_tilt_deg.map(f64::to_radians);
+    let tilt = UnitQuaternion::from_scaled_axis(Vector3::new(tx, ty, 0.0));
     path.samples
         .iter()
         .zip(ground_level)
@@ -509,6 +527,7 @@ pub fn fly(
                 jitter[2].eval(p.t),
             );
             let r = UnitQuaternion::from_rotation_matrix(&nominal)
+                * tilt
                 * UnitQuaternion::from_scaled_axis(delta);
             CameraToWorld::from_rotation_translation(r, Vector3::new(p.x, p.y, z))
         })
@@ -662,6 +681,37 @@ mod tests {
         }
         let rms = (tilts.iter().map(|t| t * t).sum::<f64>() / tilts.len() as f64).sqrt();
         assert!(rms > 0.2 && rms < 1.5, "tilt rms {rms}°");
+    }
+
+    #[test]
+    fn a_camera_tilt_moves_the_mean_optical_axis_off_nadir() {
+        let cfg = TrajectoryConfig {
+            attitude_jitter_deg: 0.0,
+            camera_tilt_deg: [3.0, 0.0],
+            ..Default::default()
+        };
+        cfg.validate().unwrap();
+        let path = plan_path(&cfg, 5).unwrap();
+        let poses = fly(&path, &|_, _| 0.0, &cfg, 5);
+        for (pose, s) in poses.iter().zip(&path.samples) {
+            let axis = pose.rotation() * Vector3::z();
+            let tilt = axis
+                .dot(&-Vector3::z())
+                .clamp(-1.0, 1.0)
+                .acos()
+                .to_degrees();
+            assert!((tilt - 3.0).abs() < 1e-9, "tilt {tilt}°");
+            // About image x: the axis leans along the track, not across it.
+            let ahead = Vector3::new(s.heading.cos(), s.heading.sin(), 0.0);
+            let across = Vector3::new(-s.heading.sin(), s.heading.cos(), 0.0);
+            assert!(axis.dot(&ahead).abs() > 0.05, "{axis:?}");
+            assert!(axis.dot(&across).abs() < 1e-9, "{axis:?}");
+        }
+        let bad = TrajectoryConfig {
+            camera_tilt_deg: [0.0, f64::NAN],
+            ..Default::default()
+        };
+        assert!(bad.validate().is_err());
     }
 
     #[test]
