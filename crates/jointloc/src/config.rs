@@ -40,6 +40,16 @@ pub struct JointLocConfig {
     /// crater-easy-s101): 0.25 measured best of 0 / 0.25 / 0.5 / 1 / 2 (`docs/jointloc.md`
     /// §"Tilt").
     pub nadir_sigma_scale: f64,
+    /// The nadir pairs put the camera where it looks at its fix from, at the camera's mean
+    /// tilt off nadir as the fused attitudes show it, instead of straight above the fix: a
+    /// body-fixed camera on a UAV pitched to cruise, or mounted off nadir, no longer pulls
+    /// the outputs off by altitude × tilt (`docs/jointloc.md` §"A camera that does not look
+    /// straight down").
+    pub estimate_camera_tilt: bool,
+    /// The estimated tilt is shrunk by this many degrees before use (a non-negative garrote:
+    /// smaller tilts count as none, a tilt of 3° is used as 2.96°): on a camera that looks
+    /// straight down the estimate wanders by 0.1–0.2°.
+    pub camera_tilt_min_deg: f64,
     /// Altitude, metres, at which the settings whose errors grow with the range hold as
     /// given (they were measured at 10 m). Above it, with `a = altitude / this`: the nadir
     /// factor's σ is `a ×` `nadir_sigma_scale` (the point above a fix is off by altitude ×
@@ -162,6 +172,8 @@ impl Default for JointLocConfig {
             ransac_iterations: 200,
             nadir_weight: 0.3,
             nadir_sigma_scale: 0.25,
+            estimate_camera_tilt: true,
+            camera_tilt_min_deg: 0.5,
             reference_altitude_m: 10.0,
             alignment_window: 20,
             altitude_window_s: 5.0,

@@ -40,6 +40,7 @@ pub mod alignment;
 pub mod altimeter_gate;
 pub mod altitude;
 pub mod builder;
+mod camera_tilt;
 pub mod config;
 pub mod dead_reckoning;
 mod end_outputs;

@@ -90,6 +90,9 @@ pub struct JointLoc {
     pub(crate) altimeter_gate: AltimeterGate,
     /// Added to every fix's x, y: the fixes' common bias as the terrain shows it.
     pub(crate) terrain: TerrainCorrection,
+    /// The camera's mean tilt off nadir in its own frame, radians (see
+    /// [`crate::camera_tilt`]); a property of the camera, kept across maps.
+    pub(crate) camera_tilt: [f64; 2],
     /// Every frame's (timestamp, altimeter reading), for the keyframe trajectory's z
     /// (16 bytes a frame: 290 kB per hour at 5 Hz).
     pub(crate) altimeter: Vec<(f64, f64)>,
@@ -195,6 +198,7 @@ impl JointLoc {
             altitude,
             altimeter_gate,
             terrain: TerrainCorrection::default(),
+            camera_tilt: [0.0, 0.0],
             altimeter: Vec::new(),
             online: Vec::new(),
             lost_frames: 0,

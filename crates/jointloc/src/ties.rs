@@ -4,10 +4,12 @@
 
 use std::collections::{BTreeMap, BTreeSet};
 
+use jointloc_geometry::Sim3;
 use jointloc_slam::map::{GlobalFix, KeyFrameId, Map, MapPointId};
-use nalgebra::Point3;
+use nalgebra::{Point3, Vector3};
 
 use crate::alignment::{self, Correspondence, SlamToWorld, Tolerance};
+use crate::camera_tilt;
 use crate::system::{JointLoc, Submitted};
 use crate::terrain_shift::{TerrainConfig, estimate_shift};
 
@@ -116,6 +118,12 @@ impl JointLoc {
             0 => 0,
             w => self.ties.len().saturating_sub(w),
         };
+        if let (true, Some(previous)) = (
+            self.config.estimate_camera_tilt,
+            self.alignment.as_ref().map(|a| a.sim3),
+        ) {
+            self.place_nadir_cameras(&previous);
+        }
         let fitted = self.fit_ties(&self.ties, first..self.ties.len());
         let Some(fitted) = fitted else {
             return;
@@ -127,6 +135,10 @@ impl JointLoc {
             r.inlier = false;
         }
         let s = fitted.sim3;
+        if self.config.estimate_camera_tilt {
+            self.estimate_camera_tilt(&s, &fitted.inlier_fixes);
+            self.place_nadir_cameras(&s);
+        }
         // Global factors per keyframe, one pair per inlier fix tied to it: the fix's ground
         // point as the point on the tied frame's optical axis (what a map fix measures), and
         // the camera above it (a nadir view, `nadir_sigma_scale`). The SLAM's tilt is its
@@ -268,6 +280,55 @@ impl JointLoc {
                 offset = ?self.terrain.offset.as_slice(),
                 "terrain shift"
             );
+        }
+    }
+
+    /// A tie's image x axis and optical axis in the world through `s` (its keyframe's x axis,
+    /// its own frame's optical axis); `None` when its keyframe is gone.
+    fn tie_axes(&self, t: &Tie, s: &Sim3) -> Option<(Vector3<f64>, Vector3<f64>)> {
+        let kf = self.slam.map().keyframe(t.keyframe)?;
+        let to_slam = kf.pose.0.rotation.inverse();
+        let x = s.rotation * (to_slam * Vector3::x());
+        let axis = s.rotation * (to_slam * (t.ground_in_kf - t.centre_in_kf));
+        Some((x, axis))
+    }
+
+    /// The camera's mean tilt off nadir (see [`crate::camera_tilt`]) over the ties `inliers`,
+    /// their attitudes through `s`.
+    fn estimate_camera_tilt(&mut self, s: &Sim3, inliers: &[usize]) {
+        let tilts: Vec<[f64; 2]> = inliers
+            .iter()
+            .filter_map(|&i| {
+                let (x, axis) = self.tie_axes(&self.ties[i], s)?;
+                camera_tilt::tilt_of(&x, &axis)
+            })
+            .collect();
+        if let Some(mean) = camera_tilt::mean_tilt(&tilts) {
+            self.camera_tilt = mean;
+            tracing::debug!(
+                about_x_deg = mean[0].to_degrees(),
+                about_y_deg = mean[1].to_degrees(),
+                ties = tilts.len(),
+                "camera tilt"
+            );
+        }
+    }
+
+    /// Each tie's nadir pair: the camera where it looks at the fix from, the altimeter's range
+    /// away along its optical axis at its heading (through `s`) and the estimated tilt.
+    fn place_nadir_cameras(&mut self, s: &Sim3) {
+        let tilt = camera_tilt::shrunk(
+            self.camera_tilt,
+            self.config.camera_tilt_min_deg.to_radians(),
+        );
+        for i in 0..self.ties.len() {
+            let t = &self.ties[i];
+            let placed = self.tie_axes(t, s).and_then(|(x, _)| {
+                camera_tilt::camera_looking_at(&t.world_ground, t.altitude, &x, tilt)
+            });
+            if let Some(p) = placed {
+                self.ties[i].world_camera = p;
+            }
         }
     }
 

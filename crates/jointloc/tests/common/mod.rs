@@ -33,6 +33,24 @@ pub fn flight() -> &'static Path {
     .path()
 }
 
+/// The same kind of flight with the camera tilted 3° off nadir along the track (a UAV
+/// pitched to cruise), 60 m, rendered once.
+pub fn tilted_flight() -> &'static Path {
+    static DIR: OnceLock<tempfile::TempDir> = OnceLock::new();
+    DIR.get_or_init(|| {
+        let dir = tempfile::tempdir().unwrap();
+        let mut cfg = jointloc_sim::SimConfig {
+            seed: 20261206,
+            ..Default::default()
+        };
+        cfg.trajectory.length_m = 60.0;
+        cfg.trajectory.camera_tilt_deg = [3.0, 0.0];
+        jointloc_sim::generate_dataset(&cfg, dir.path(), &mut |_, _, _| {}).unwrap();
+        dir
+    })
+    .path()
+}
+
 pub fn ground_truth(dir: &Path) -> Trajectory {
     Trajectory::read_tum(dir.join("uav/gt.txt"), &TumOptions::default()).unwrap()
 }
