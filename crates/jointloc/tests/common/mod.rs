@@ -17,38 +17,33 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};
 
+/// A crater flight of `length_m` at 5 Hz (500 × 500 frames at 10 m), the camera tilted
+/// `camera_tilt_deg` off nadir, rendered into a fresh folder.
+fn render(seed: u64, length_m: f64, camera_tilt_deg: [f64; 2]) -> tempfile::TempDir {
+    let dir = tempfile::tempdir().unwrap();
+    let mut cfg = jointloc_sim::SimConfig {
+        seed,
+        ..Default::default()
+    };
+    cfg.trajectory.length_m = length_m;
+    cfg.trajectory.camera_tilt_deg = camera_tilt_deg;
+    jointloc_sim::generate_dataset(&cfg, dir.path(), &mut |_, _, _| {}).unwrap();
+    dir
+}
+
 /// A 40 m crater flight at 5 Hz (201 frames of 500 × 500 at 10 m), rendered once.
 pub fn flight() -> &'static Path {
     static DIR: OnceLock<tempfile::TempDir> = OnceLock::new();
-    DIR.get_or_init(|| {
-        let dir = tempfile::tempdir().unwrap();
-        let mut cfg = jointloc_sim::SimConfig {
-            seed: 20261203,
-            ..Default::default()
-        };
-        cfg.trajectory.length_m = 40.0;
-        jointloc_sim::generate_dataset(&cfg, dir.path(), &mut |_, _, _| {}).unwrap();
-        dir
-    })
-    .path()
+    DIR.get_or_init(|| render(20261203, 40.0, [0.0, 0.0]))
+        .path()
 }
 
 /// The same kind of flight with the camera tilted 3° off nadir along the track (a UAV
 /// pitched to cruise), 60 m, rendered once.
 pub fn tilted_flight() -> &'static Path {
     static DIR: OnceLock<tempfile::TempDir> = OnceLock::new();
-    DIR.get_or_init(|| {
-        let dir = tempfile::tempdir().unwrap();
-        let mut cfg = jointloc_sim::SimConfig {
-            seed: 20261206,
-            ..Default::default()
-        };
-        cfg.trajectory.length_m = 60.0;
-        cfg.trajectory.camera_tilt_deg = [3.0, 0.0];
-        jointloc_sim::generate_dataset(&cfg, dir.path(), &mut |_, _, _| {}).unwrap();
-        dir
-    })
-    .path()
+    DIR.get_or_init(|| render(20261206, 60.0, [3.0, 0.0]))
+        .path()
 }
 
 pub fn ground_truth(dir: &Path) -> Trajectory {
