@@ -262,6 +262,12 @@ impl JointLocConfig {
                 "must be finite and >= 0",
             ),
             (
+                "camera_tilt_min_deg",
+                self.camera_tilt_min_deg,
+                true,
+                "must be finite and >= 0",
+            ),
+            (
                 "reference_altitude_m",
                 self.reference_altitude_m,
                 false,
@@ -427,7 +433,7 @@ mod tests {
     #[test]
     fn invalid_terrain_and_recovery_settings_are_rejected_with_their_field() {
         type Set = fn(&mut JointLocConfig);
-        let cases: [(Set, &str); 9] = [
+        let cases: [(Set, &str); 10] = [
             (|c| c.max_altitude_rate_mps = 0.0, "max_altitude_rate_mps"),
             (
                 |c| c.max_altitude_rate_mps = f64::NAN,
@@ -443,6 +449,7 @@ mod tests {
                 |c| c.dead_reckoning_max_s = f64::NAN,
                 "dead_reckoning_max_s",
             ),
+            (|c| c.camera_tilt_min_deg = -0.5, "camera_tilt_min_deg"),
         ];
         for (set, field) in cases {
             let mut c = JointLocConfig::default();
