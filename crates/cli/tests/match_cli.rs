@@ -18,9 +18,13 @@ fn s(p: &Path) -> &str {
 
 /// A 3 m gravel flight at 2 Hz, made once for this test binary.
 fn dataset() -> &'static Path {
-    static DIR: OnceLock<tempfile::TempDir> = OnceLock::new();
+    static DIR: OnceLock<jointloc_sim::scratch::ProcessScratch> = OnceLock::new();
     DIR.get_or_init(|| {
-        let dir = tempfile::tempdir().unwrap();
+        let dir = jointloc_sim::scratch::ProcessScratch::new(
+            std::path::Path::new(env!("CARGO_TARGET_TMPDIR")),
+            "cli-match",
+        )
+        .unwrap();
         let out = jointloc(&[
             "sim",
             "--out",

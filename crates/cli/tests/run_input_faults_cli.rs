@@ -17,7 +17,7 @@ const GAP: (f64, f64) = (12.0, 3.0);
 
 /// The clean flight, its faulty copy, and what was done to it.
 struct Flight {
-    dir: tempfile::TempDir,
+    dir: jointloc_sim::scratch::ProcessScratch,
     /// The counts the faults must give, by kind.
     expected: BTreeMap<String, u64>,
     /// `altimeter.txt:LINE:` of the first `nan`.
@@ -81,7 +81,11 @@ fn data_lines(text: &str) -> Vec<usize> {
 fn flight() -> &'static Flight {
     static FLIGHT: OnceLock<Flight> = OnceLock::new();
     FLIGHT.get_or_init(|| {
-        let dir = tempfile::tempdir().unwrap();
+        let dir = jointloc_sim::scratch::ProcessScratch::new(
+            std::path::Path::new(env!("CARGO_TARGET_TMPDIR")),
+            "cli-input-faults",
+        )
+        .unwrap();
         let clean = dir.path().join("clean");
         let sim = jointloc(&[
             "sim",

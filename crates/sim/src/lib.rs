@@ -13,6 +13,7 @@ pub mod regional;
 pub mod render;
 pub mod rocks;
 pub mod satellite;
+pub mod scratch;
 pub mod sensor;
 pub mod shading;
 pub mod surface;

@@ -16,14 +16,18 @@ use jointloc_slam::tracking::TrackingState;
 
 /// A flight of `length_m` over `kind` terrain, generated once per test binary.
 fn dataset(
-    slot: &'static OnceLock<(tempfile::TempDir, PathBuf)>,
+    slot: &'static OnceLock<(jointloc_sim::scratch::ProcessScratch, PathBuf)>,
     kind: TerrainKind,
     seed: u64,
     length_m: f64,
 ) -> &'static Path {
     &slot
         .get_or_init(|| {
-            let tmp = tempfile::tempdir().expect("temp dir");
+            let tmp = jointloc_sim::scratch::ProcessScratch::new(
+                std::path::Path::new(env!("CARGO_TARGET_TMPDIR")),
+                "slam-vo",
+            )
+            .unwrap();
             let dir = tmp.path().join("ds");
             let mut cfg = SimConfig {
                 terrain_kind: kind,
@@ -37,8 +41,8 @@ fn dataset(
         .1
 }
 
-static CRATER: OnceLock<(tempfile::TempDir, PathBuf)> = OnceLock::new();
-static GRAVEL: OnceLock<(tempfile::TempDir, PathBuf)> = OnceLock::new();
+static CRATER: OnceLock<(jointloc_sim::scratch::ProcessScratch, PathBuf)> = OnceLock::new();
+static GRAVEL: OnceLock<(jointloc_sim::scratch::ProcessScratch, PathBuf)> = OnceLock::new();
 
 /// Runs the system on the first `n` frames; `before` is called before each frame.
 fn run(dir: &Path, n: usize, before: impl FnMut(usize, &mut System)) -> (System, Vec<FrameResult>) {

@@ -104,9 +104,13 @@ pub fn frame_from_map(
 /// A small simulated dataset (crater, easy, 8 m at 1 Hz: 9 frames of 500 × 500), generated
 /// once per test binary into a temporary folder.
 pub fn sim_dataset() -> &'static Path {
-    static DIR: OnceLock<tempfile::TempDir> = OnceLock::new();
+    static DIR: OnceLock<jointloc_sim::scratch::ProcessScratch> = OnceLock::new();
     DIR.get_or_init(|| {
-        let dir = tempfile::tempdir().unwrap();
+        let dir = jointloc_sim::scratch::ProcessScratch::new(
+            std::path::Path::new(env!("CARGO_TARGET_TMPDIR")),
+            "absloc-easy",
+        )
+        .unwrap();
         let mut cfg = SimConfig {
             seed: 20261122,
             ..Default::default()
@@ -122,9 +126,13 @@ pub fn sim_dataset() -> &'static Path {
 /// The same flight over a medium-difficulty map (12.5 cm/px, 2.5 times coarser than the easy
 /// one, other sun), generated once per test binary.
 pub fn sim_dataset_medium() -> &'static Path {
-    static DIR: OnceLock<tempfile::TempDir> = OnceLock::new();
+    static DIR: OnceLock<jointloc_sim::scratch::ProcessScratch> = OnceLock::new();
     DIR.get_or_init(|| {
-        let dir = tempfile::tempdir().unwrap();
+        let dir = jointloc_sim::scratch::ProcessScratch::new(
+            std::path::Path::new(env!("CARGO_TARGET_TMPDIR")),
+            "absloc-medium",
+        )
+        .unwrap();
         let mut cfg = SimConfig {
             seed: 20261123,
             difficulty: jointloc_sim::Difficulty::Medium,

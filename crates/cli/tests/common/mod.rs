@@ -41,10 +41,10 @@ pub fn summary(out: &Path) -> serde_json::Value {
     serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap()
 }
 
-/// One seed's shared state: the temporary folder holding its dataset (`data/`) and the base
+/// One seed's shared state: the process's scratch folder holding its dataset (`data/`) and the base
 /// run's outputs (`out/`), and the base run once done.
 struct Seeded {
-    dir: tempfile::TempDir,
+    dir: jointloc_sim::scratch::ProcessScratch,
     base: OnceLock<Base>,
 }
 
@@ -73,7 +73,11 @@ fn seeded(seed: &str) -> &'static Seeded {
         _ => panic!("seed {seed}: no dataset (only {SEEDS:?})"),
     };
     cell.get_or_init(|| {
-        let dir = tempfile::tempdir().unwrap();
+        let dir = jointloc_sim::scratch::ProcessScratch::new(
+            std::path::Path::new(env!("CARGO_TARGET_TMPDIR")),
+            "cli-run-seed",
+        )
+        .unwrap();
         sim_crater(&dir.path().join("data"), seed, &[]);
         Seeded {
             dir,

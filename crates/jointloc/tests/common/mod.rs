@@ -18,9 +18,17 @@ use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};
 
 /// A crater flight of `length_m` at 5 Hz (500 × 500 frames at 10 m), the camera tilted
-/// `camera_tilt_deg` off nadir, rendered into a fresh folder.
-fn render(seed: u64, length_m: f64, camera_tilt_deg: [f64; 2]) -> tempfile::TempDir {
-    let dir = tempfile::tempdir().unwrap();
+/// `camera_tilt_deg` off nadir, rendered into a fresh folder of this process's.
+fn render(
+    seed: u64,
+    length_m: f64,
+    camera_tilt_deg: [f64; 2],
+) -> jointloc_sim::scratch::ProcessScratch {
+    let dir = jointloc_sim::scratch::ProcessScratch::new(
+        std::path::Path::new(env!("CARGO_TARGET_TMPDIR")),
+        "fusion-flight",
+    )
+    .unwrap();
     let mut cfg = jointloc_sim::SimConfig {
         seed,
         ..Default::default()
@@ -33,7 +41,7 @@ fn render(seed: u64, length_m: f64, camera_tilt_deg: [f64; 2]) -> tempfile::Temp
 
 /// A 40 m crater flight at 5 Hz (201 frames of 500 × 500 at 10 m), rendered once.
 pub fn flight() -> &'static Path {
-    static DIR: OnceLock<tempfile::TempDir> = OnceLock::new();
+    static DIR: OnceLock<jointloc_sim::scratch::ProcessScratch> = OnceLock::new();
     DIR.get_or_init(|| render(20261203, 40.0, [0.0, 0.0]))
         .path()
 }
@@ -41,7 +49,7 @@ pub fn flight() -> &'static Path {
 /// The same kind of flight with the camera tilted 3° off nadir along the track (a UAV
 /// pitched to cruise), 60 m, rendered once.
 pub fn tilted_flight() -> &'static Path {
-    static DIR: OnceLock<tempfile::TempDir> = OnceLock::new();
+    static DIR: OnceLock<jointloc_sim::scratch::ProcessScratch> = OnceLock::new();
     DIR.get_or_init(|| render(20261206, 60.0, [3.0, 0.0]))
         .path()
 }
