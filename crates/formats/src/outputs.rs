@@ -18,8 +18,8 @@ pub mod summary;
 pub use fixes::{FixRow, read_fixes, write_fixes};
 pub use online::{OnlineFrame, OnlineStatus, read_online_tum, write_online_tum};
 pub use summary::{
-    FinalBaStats, OutputCrs, RealtimeSummary, Summary, TerrainSummary, TimingSummary, read_json,
-    write_json,
+    CameraTiltSummary, FinalBaStats, OutputCrs, RealtimeSummary, Summary, TerrainSummary,
+    TimingSummary, read_json, write_json,
 };
 
 use std::path::Path;

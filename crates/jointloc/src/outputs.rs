@@ -173,6 +173,7 @@ impl JointLoc {
                 y: terrain.offset.y,
                 updates: terrain.updates,
             },
+            camera_tilt: self.camera_tilt_deg(),
             final_ba: end.final_ba,
             realtime: None,
             input_faults: self.altimeter_gate.counts(),

@@ -15,7 +15,7 @@ use std::time::Instant;
 use image::GrayImage;
 use jointloc_absloc::{Outcome, Prior, heading_from_rotation};
 use jointloc_features::orb::GrayImageView;
-use jointloc_formats::outputs::{OnlineFrame, OnlineStatus};
+use jointloc_formats::outputs::{CameraTiltSummary, OnlineFrame, OnlineStatus};
 use jointloc_geometry::{CameraToWorld, Sim3};
 use jointloc_slam::map::KeyFrameId;
 use jointloc_slam::system::System;
@@ -92,7 +92,7 @@ pub struct JointLoc {
     pub(crate) terrain: TerrainCorrection,
     /// The camera's mean tilt off nadir in its own frame, radians (see
     /// [`crate::camera_tilt`]); a property of the camera, kept across maps.
-    pub(crate) camera_tilt: [f64; 2],
+    pub(crate) camera_tilt: Option<[f64; 2]>,
     /// Every frame's (timestamp, altimeter reading), for the keyframe trajectory's z
     /// (16 bytes a frame: 290 kB per hour at 5 Hz).
     pub(crate) altimeter: Vec<(f64, f64)>,
@@ -198,7 +198,7 @@ impl JointLoc {
             altitude,
             altimeter_gate,
             terrain: TerrainCorrection::default(),
-            camera_tilt: [0.0, 0.0],
+            camera_tilt: None,
             altimeter: Vec::new(),
             online: Vec::new(),
             lost_frames: 0,
@@ -281,6 +281,26 @@ impl JointLoc {
 
     pub fn fixes(&self) -> &[FixRecord] {
         &self.fixes
+    }
+
+    /// The camera's mean tilt off nadir, `[about image x, about image y]` in degrees, as
+    /// estimated from the fused attitudes at the last refit and as used (shrunk by
+    /// `camera_tilt_min_deg`); `None` when the estimate is off or nothing was aligned yet.
+    pub fn camera_tilt_deg(&self) -> Option<CameraTiltSummary> {
+        let raw = self.camera_tilt?;
+        let used = self.used_camera_tilt();
+        Some(CameraTiltSummary {
+            estimated_deg: raw.map(f64::to_degrees),
+            used_deg: used.map(f64::to_degrees),
+        })
+    }
+
+    /// The tilt the nadir pairs use, radians: the estimate shrunk by `camera_tilt_min_deg`.
+    pub(crate) fn used_camera_tilt(&self) -> [f64; 2] {
+        crate::camera_tilt::shrunk(
+            self.camera_tilt.unwrap_or_default(),
+            self.config.camera_tilt_min_deg.to_radians(),
+        )
     }
 
     /// The correction added to the fixes' x, y from the terrain (zero when off or without

@@ -304,7 +304,7 @@ impl JointLoc {
             })
             .collect();
         if let Some(mean) = camera_tilt::mean_tilt(&tilts) {
-            self.camera_tilt = mean;
+            self.camera_tilt = Some(mean);
             tracing::debug!(
                 about_x_deg = mean[0].to_degrees(),
                 about_y_deg = mean[1].to_degrees(),
@@ -317,10 +317,7 @@ impl JointLoc {
     /// Each tie's nadir pair: the camera where it looks at the fix from, the altimeter's range
     /// away along its optical axis at its heading (through `s`) and the estimated tilt.
     fn place_nadir_cameras(&mut self, s: &Sim3) {
-        let tilt = camera_tilt::shrunk(
-            self.camera_tilt,
-            self.config.camera_tilt_min_deg.to_radians(),
-        );
+        let tilt = self.used_camera_tilt();
         for i in 0..self.ties.len() {
             let t = &self.ties[i];
             let placed = self.tie_axes(t, s).and_then(|(x, _)| {

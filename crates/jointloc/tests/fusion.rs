@@ -524,6 +524,16 @@ fn a_camera_tilted_off_nadir_is_placed_where_it_looks_from() {
                 system.process(image, *t, *alt).unwrap();
             }
             let outputs = system.finish().unwrap();
+            let tilt = outputs.summary.camera_tilt;
+            if estimate {
+                // Reported as estimated: the flight's 3° about the image x axis.
+                let t = tilt.expect("the estimated tilt in the summary");
+                let off = (t.estimated_deg[0] - 3.0).hypot(t.estimated_deg[1]);
+                assert!(off < 0.5, "estimated {:?}°, flown [3, 0]°", t.estimated_deg);
+                assert!(t.used_deg[0] < t.estimated_deg[0] && t.used_deg[0] > 2.5);
+            } else {
+                assert_eq!(tilt, None, "not estimated, not reported");
+            }
             let end = outputs.frames.as_ref().unwrap();
             (rmse(&gt, &online(&outputs)), rmse(&gt, end))
         })

@@ -37,6 +37,17 @@ pub struct TerrainSummary {
     pub updates: usize,
 }
 
+/// The camera's mean tilt off nadir as the fusion estimated it from the fused attitudes,
+/// degrees, `[about image x, about image y]` (a camera mounted off nadir, a UAV pitched to
+/// cruise).
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+pub struct CameraTiltSummary {
+    /// The mean tilt of the fused attitudes at the last refit.
+    pub estimated_deg: [f64; 2],
+    /// What the fusion used: the estimate shrunk by `camera_tilt_min_deg`.
+    pub used_deg: [f64; 2],
+}
+
 /// A replay at the camera rate: how far the processing lagged behind the camera.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct RealtimeSummary {
@@ -94,6 +105,9 @@ pub struct Summary {
     pub first_fix_searched_tiles: Option<usize>,
     #[serde(rename = "terrain_correction_m")]
     pub terrain_correction: TerrainSummary,
+    /// Absent when the estimate is switched off or the flight was never geo-referenced.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub camera_tilt: Option<CameraTiltSummary>,
     pub final_ba: Option<FinalBaStats>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub realtime: Option<RealtimeSummary>,
