@@ -54,6 +54,12 @@ pub(super) fn print(outputs: &Outputs) {
             terrain.x, terrain.y, terrain.updates
         );
     }
+    if let Some(t) = &s.camera_tilt {
+        println!(
+            "camera tilt off nadir: ({:+.2}, {:+.2})° about image (x, y), ({:+.2}, {:+.2})° used",
+            t.estimated_deg[0], t.estimated_deg[1], t.used_deg[0], t.used_deg[1]
+        );
+    }
     if let Some(b) = &s.final_ba {
         println!(
             "final global BA: {} keyframes, {} points, {} fix factors ({} left out: wrong, or \
