@@ -35,9 +35,9 @@ pub struct LocalBaConfig {
     pub global_kernel: RobustKernel,
     /// σ of the terrain height at a map point, metres, for the ground-height factors that put
     /// the window's points onto the elevation model once the map is geo-referenced (they fix the
-    /// local map's tilt); 0: off. Only used with a [`GroundModel`]. 0.1 m (the simulated DEM's
-    /// 5 cm noise plus relief between its posts): 0.05 / 0.1 / 0.2 measured within 3 % of each
-    /// other over nine flights (`docs/jointloc.md` §"Ground factors"); a coarser or noisier
+    /// local map's tilt); 0: off. Only used with a [`GroundModel`]. 0.05 m, the simulated DEM's
+    /// stated σ: on 18 fresh flights 1–3 % better than 0.1 online and at the end, on the six
+    /// development flights 22 % at the end (`docs/jointloc.md` §"Ground factors"); a coarser or noisier
     /// model (a HiRISE DTM: 1 m posts, decimetres) wants its own vertical precision: the
     /// factors use the larger of this and the model's stated σ ([`GroundModel::sigma_m`],
     /// `map.toml`'s `[elevation] sigma_m`).
@@ -79,7 +79,7 @@ impl Default for LocalBaConfig {
             global_kernel: RobustKernel::Huber {
                 delta: CHI2_3DOF_95.sqrt(),
             },
-            ground_sigma: 0.1,
+            ground_sigma: 0.05,
             ground_kernel: RobustKernel::Huber { delta: 1.0 },
         }
     }
