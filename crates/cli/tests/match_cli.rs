@@ -20,11 +20,9 @@ fn s(p: &Path) -> &str {
 fn dataset() -> &'static Path {
     static DIR: OnceLock<jointloc_sim::scratch::ProcessScratch> = OnceLock::new();
     DIR.get_or_init(|| {
-        let dir = jointloc_sim::scratch::ProcessScratch::new(
-            std::path::Path::new(env!("CARGO_TARGET_TMPDIR")),
-            "cli-match",
-        )
-        .unwrap();
+        let dir =
+            jointloc_sim::scratch::ProcessScratch::new(env!("CARGO_TARGET_TMPDIR"), "cli-match")
+                .unwrap();
         let out = jointloc(&[
             "sim",
             "--out",

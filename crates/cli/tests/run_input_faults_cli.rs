@@ -82,7 +82,7 @@ fn flight() -> &'static Flight {
     static FLIGHT: OnceLock<Flight> = OnceLock::new();
     FLIGHT.get_or_init(|| {
         let dir = jointloc_sim::scratch::ProcessScratch::new(
-            std::path::Path::new(env!("CARGO_TARGET_TMPDIR")),
+            env!("CARGO_TARGET_TMPDIR"),
             "cli-input-faults",
         )
         .unwrap();

@@ -6,7 +6,7 @@
 //! long as its process lives; making one removes every folder under the same root and prefix
 //! whose lock is free, that is, whose process has ended (however it ended).
 
-use std::fs::{self, File, TryLockError};
+use std::fs::{self, File};
 use std::io;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -22,9 +22,10 @@ pub struct ProcessScratch {
 }
 
 impl ProcessScratch {
-    /// Makes a new folder `<root>/<prefix>-<pid>-<n>` after removing the abandoned ones of
-    /// `prefix` under `root`.
-    pub fn new(root: &Path, prefix: &str) -> io::Result<Self> {
+    /// Makes a new folder `<root>/<prefix>-<pid>-<nanos>-<n>` after removing the abandoned
+    /// ones of `prefix` under `root` (a test passes `env!("CARGO_TARGET_TMPDIR")`).
+    pub fn new(root: impl AsRef<Path>, prefix: &str) -> io::Result<Self> {
+        let root = root.as_ref();
         fs::create_dir_all(root)?;
         remove_abandoned(root, prefix);
         static COUNTER: AtomicU64 = AtomicU64::new(0);
@@ -83,14 +84,12 @@ fn remove_abandoned(root: &Path, prefix: &str) {
         let Ok(lock) = File::open(entry.path()) else {
             continue;
         };
-        match lock.try_lock() {
-            Ok(()) => {
-                let folder = root.join(name);
-                if fs::remove_dir_all(&folder).is_ok() || !folder.exists() {
-                    let _ = fs::remove_file(entry.path());
-                }
+        // Held (or unreadable): in use, or not ours to judge.
+        if lock.try_lock().is_ok() {
+            let folder = root.join(name);
+            if fs::remove_dir_all(&folder).is_ok() || !folder.exists() {
+                let _ = fs::remove_file(entry.path());
             }
-            Err(TryLockError::WouldBlock) | Err(TryLockError::Error(_)) => {}
         }
     }
 }

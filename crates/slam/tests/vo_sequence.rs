@@ -23,11 +23,9 @@ fn dataset(
 ) -> &'static Path {
     &slot
         .get_or_init(|| {
-            let tmp = jointloc_sim::scratch::ProcessScratch::new(
-                std::path::Path::new(env!("CARGO_TARGET_TMPDIR")),
-                "slam-vo",
-            )
-            .unwrap();
+            let tmp =
+                jointloc_sim::scratch::ProcessScratch::new(env!("CARGO_TARGET_TMPDIR"), "slam-vo")
+                    .unwrap();
             let dir = tmp.path().join("ds");
             let mut cfg = SimConfig {
                 terrain_kind: kind,

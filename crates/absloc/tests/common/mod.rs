@@ -106,11 +106,9 @@ pub fn frame_from_map(
 pub fn sim_dataset() -> &'static Path {
     static DIR: OnceLock<jointloc_sim::scratch::ProcessScratch> = OnceLock::new();
     DIR.get_or_init(|| {
-        let dir = jointloc_sim::scratch::ProcessScratch::new(
-            std::path::Path::new(env!("CARGO_TARGET_TMPDIR")),
-            "absloc-easy",
-        )
-        .unwrap();
+        let dir =
+            jointloc_sim::scratch::ProcessScratch::new(env!("CARGO_TARGET_TMPDIR"), "absloc-easy")
+                .unwrap();
         let mut cfg = SimConfig {
             seed: 20261122,
             ..Default::default()
@@ -129,7 +127,7 @@ pub fn sim_dataset_medium() -> &'static Path {
     static DIR: OnceLock<jointloc_sim::scratch::ProcessScratch> = OnceLock::new();
     DIR.get_or_init(|| {
         let dir = jointloc_sim::scratch::ProcessScratch::new(
-            std::path::Path::new(env!("CARGO_TARGET_TMPDIR")),
+            env!("CARGO_TARGET_TMPDIR"),
             "absloc-medium",
         )
         .unwrap();

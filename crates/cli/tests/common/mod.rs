@@ -73,11 +73,9 @@ fn seeded(seed: &str) -> &'static Seeded {
         _ => panic!("seed {seed}: no dataset (only {SEEDS:?})"),
     };
     cell.get_or_init(|| {
-        let dir = jointloc_sim::scratch::ProcessScratch::new(
-            std::path::Path::new(env!("CARGO_TARGET_TMPDIR")),
-            "cli-run-seed",
-        )
-        .unwrap();
+        let dir =
+            jointloc_sim::scratch::ProcessScratch::new(env!("CARGO_TARGET_TMPDIR"), "cli-run-seed")
+                .unwrap();
         sim_crater(&dir.path().join("data"), seed, &[]);
         Seeded {
             dir,

@@ -24,11 +24,9 @@ fn render(
     length_m: f64,
     camera_tilt_deg: [f64; 2],
 ) -> jointloc_sim::scratch::ProcessScratch {
-    let dir = jointloc_sim::scratch::ProcessScratch::new(
-        std::path::Path::new(env!("CARGO_TARGET_TMPDIR")),
-        "fusion-flight",
-    )
-    .unwrap();
+    let dir =
+        jointloc_sim::scratch::ProcessScratch::new(env!("CARGO_TARGET_TMPDIR"), "fusion-flight")
+            .unwrap();
     let mut cfg = jointloc_sim::SimConfig {
         seed,
         ..Default::default()

@@ -37,10 +37,10 @@ pub struct LocalBaConfig {
     /// the window's points onto the elevation model once the map is geo-referenced (they fix the
     /// local map's tilt); 0: off. Only used with a [`GroundModel`]. 0.05 m, the simulated DEM's
     /// stated σ: on 18 fresh flights 1–3 % better than 0.1 online and at the end, on the six
-    /// development flights 22 % at the end (`docs/jointloc.md` §"Ground factors"); a coarser or noisier
-    /// model (a HiRISE DTM: 1 m posts, decimetres) wants its own vertical precision: the
-    /// factors use the larger of this and the model's stated σ ([`GroundModel::sigma_m`],
-    /// `map.toml`'s `[elevation] sigma_m`).
+    /// development flights 22 % at the end (`docs/jointloc.md` §"Ground factors"); a coarser
+    /// or noisier model (a HiRISE DTM: 1 m posts, decimetres) wants its own vertical
+    /// precision: the factors use the larger of this and the model's stated σ
+    /// ([`GroundModel::sigma_m`], `map.toml`'s `[elevation] sigma_m`).
     pub ground_sigma: f64,
     /// Kernel of the ground-height factors (rocks and crater rims stand off a smooth model).
     pub ground_kernel: RobustKernel,
