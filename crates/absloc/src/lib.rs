@@ -9,7 +9,8 @@
 //! - [`warp`]: scale/rotation normalisation and homography warps (area-filtered);
 //! - [`candidate`]: one view against one tile (match, homography, checks);
 //! - [`ssim`], [`confidence`]: the confidence and the area prediction;
-//! - [`localizer`], [`search`]: the coarse-to-fine search ([`AbsLocalizer`]);
+//! - [`localizer`], [`search`]: the coarse-to-fine search ([`AbsLocalizer`]); `window`: the
+//!   map's keypoints around the predicted footprint, matched before any tile in flight;
 //! - [`shortlist`]: VLAD ranking of the pairs of a whole-map search;
 //! - [`mosaic`]: a virtual frame wider than one frame, from recent frames and their poses;
 //! - [`registry`]: matchers by name (`xfeat-lighterglue`, `orb`, ...);
@@ -36,6 +37,7 @@ pub mod tile_store;
 pub mod tiles;
 pub mod warp;
 pub mod whole_map;
+mod window;
 
 pub use cache::CacheStatus;
 pub use confidence::{ConfidenceMode, search_radius};

@@ -19,7 +19,9 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::cache::{self, CacheStatus};
-use crate::candidate::{AcceptConfig, Candidate, MatchContext, QueryView, Rejection, select};
+use crate::candidate::{
+    AcceptConfig, Candidate, MatchContext, QueryView, Rejection, evaluate, select,
+};
 use crate::coarse_places::{CoarsePlaces, ViewSignals};
 use crate::confidence::{ConfidenceMode, RADIUS_RANGE, search_radius};
 use crate::correlate::{CorrelationConfig, Grid, NoPeak, correlate};
@@ -31,6 +33,7 @@ use crate::ssim::{SsimConfig, ssim_masked};
 use crate::tile_store::TileStore;
 use crate::tiles::MapTiles;
 use crate::warp::{Lens, NormalisedFrame, normalise_lens, resample, warp_into_map_lens};
+use crate::window;
 
 /// Settings of [`AbsLocalizer`].
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -48,6 +51,20 @@ pub struct AbsLocConfig {
     /// with the most inliers contains the frame, so with a sound prediction the outer tiles
     /// only cost time (7× on medium maps, where a low confidence opens the whole map).
     pub inner_tiles_first: bool,
+    /// With a prior position and heading (the fused pose in flight), first match the view
+    /// against the map's keypoints over its predicted footprint and this margin, metres, on
+    /// each side ([`crate::window`]): one matcher input instead of up to four tiles. Its fix
+    /// counts when it lies within the margin of the prediction; otherwise the tiles are
+    /// searched as before. 0 turns it off.
+    pub predicted_window_margin_m: f64,
+    /// When the predicted window gives no fix, search the tiles as without it (the local
+    /// radius, then the whole map). Off (default): a prior with a heading is trusted, and the
+    /// frame does not match where it is predicted to be; the caller leaves the heading out
+    /// when it doubts the prediction (JointLoc does every
+    /// `sweep_after_failures_aligned`-th failure in a row), and the tiles are searched then.
+    /// A failed search costs one matcher call instead of the whole radius (50 tiles, 4 s,
+    /// on a medium map).
+    pub tiles_after_window: bool,
     /// Resample the frame to the map's GSD before matching (off: native scale, as the
     /// reference code). Measured better (`docs/absloc.md` §"Coarse maps"), so on by default.
     pub scale_normalisation: bool,
@@ -110,6 +127,8 @@ impl Default for AbsLocConfig {
             area_prediction: true,
             global_fallback: true,
             inner_tiles_first: true,
+            predicted_window_margin_m: 1.5,
+            tiles_after_window: false,
             scale_normalisation: true,
             rotation_hypotheses: 8,
             use_last_heading: true,
@@ -153,6 +172,13 @@ impl AbsLocConfig {
                 "must be >= 0 (0: no crop)",
             ));
         }
+        if !(self.predicted_window_margin_m.is_finite() && self.predicted_window_margin_m >= 0.0) {
+            return Err(bad(
+                "predicted_window_margin_m",
+                self.predicted_window_margin_m.to_string(),
+                "must be >= 0 (0: off)",
+            ));
+        }
         if self.rotation_hypotheses == 0 {
             return Err(bad("rotation_hypotheses", "0".into(), "must be ≥ 1"));
         }
@@ -189,6 +215,16 @@ impl AbsLocConfig {
         self.homography.ransac.validate()?;
         Ok(())
     }
+}
+
+/// What matching the predicted window gave.
+enum WindowOutcome {
+    Fix(Candidate),
+    /// Nothing accepted where the frame was predicted.
+    NoFix,
+    /// A fix beyond the margin, or a window off the map: the prediction was off, the tiles
+    /// decide.
+    BeyondMargin,
 }
 
 /// What the caller knows before the search (e.g. from the fused pose).
@@ -645,6 +681,7 @@ impl AbsLocalizer {
         } else {
             vec![first]
         };
+        let mut from_window = false;
         let (mut found, mut shortlisted) = if local.is_none() {
             self.search_whole_map(
                 &store,
@@ -657,7 +694,45 @@ impl AbsLocalizer {
             )?
         } else {
             let mut found = None;
-            for tiles in passes.iter().filter(|p| !p.is_empty()) {
+            let mut window_failed = false;
+            if let (Some([x, y]), Some(h)) = (prior.position, prior.heading)
+                && self.config.predicted_window_margin_m > 0.0
+            {
+                match self.search_window(
+                    &store,
+                    frame,
+                    &ctx,
+                    (x, y),
+                    h,
+                    (scale, expected),
+                    &mut views,
+                    &mut searched,
+                    &mut best_rejection,
+                )? {
+                    WindowOutcome::Fix(c) => {
+                        found = Some(c);
+                        from_window = true;
+                    }
+                    WindowOutcome::NoFix => window_failed = true,
+                    WindowOutcome::BeyondMargin => {}
+                }
+            }
+            if window_failed && !self.config.tiles_after_window {
+                return Ok(self.fail(
+                    FailureReason::NoMatch {
+                        best: best_rejection,
+                    },
+                    searched,
+                    false,
+                    start,
+                ));
+            }
+            let tile_passes = if found.is_some() {
+                &passes[..0]
+            } else {
+                &passes[..]
+            };
+            for tiles in tile_passes.iter().filter(|p| !p.is_empty()) {
                 found = self.search(
                     &store,
                     frame,
@@ -677,7 +752,7 @@ impl AbsLocalizer {
             }
             (found, false)
         };
-        let mut global = local_is_all;
+        let mut global = local_is_all && !from_window;
         // Retry everywhere, with the rotation sweep unless the caller fixed the heading; not
         // when that is exactly what was just searched.
         let same_again = local_is_all && (heading.is_none() || prior.heading.is_some());
@@ -1301,6 +1376,100 @@ impl AbsLocalizer {
     /// Best accepted candidate over `tiles` × `angles` (views are detected once per angle and
     /// kept in `views` for reuse by a later pass), with the early stop. `rank`: a search with
     /// no prior position, whose pairs are shortlisted by [`crate::shortlist`].
+    /// The query view of `frame` turned by `angle`: its position in `views`, made and added
+    /// the first time an angle is asked for.
+    fn view_at(
+        &self,
+        frame: &GrayImage,
+        ctx: &ViewContext<'_>,
+        angle: f64,
+        scale: f64,
+        views: &mut Vec<(f64, QueryView)>,
+    ) -> Result<usize> {
+        if let Some(id) = views.iter().position(|(b, _)| angle_eq(*b, angle)) {
+            return Ok(id);
+        }
+        let mut v = QueryView::through(
+            frame,
+            ctx.lens,
+            self.pipeline.detector.as_ref(),
+            (self.camera.cx, self.camera.cy),
+            scale,
+            angle,
+            self.config.accept.border_margin_px,
+            self.max_view_size(),
+        )?;
+        if let Some(c) = ctx.coverage {
+            // Keypoints next to the fill of a virtual frame see its edge.
+            let keep: Vec<usize> = (0..v.features.len())
+                .filter(|&i| {
+                    let [u, w] = v.features.keypoints[i];
+                    let (x, y) = v.normalised.transform.inverse(u as f64, w as f64);
+                    c.covers(x, y)
+                })
+                .collect();
+            v.features = select(&v.features, &keep);
+        }
+        views.push((angle, v));
+        Ok(views.len() - 1)
+    }
+
+    /// Matches the view at `angle` against the map's keypoints around the predicted position
+    /// ([`crate::window`]): the view's extent plus
+    /// [`AbsLocConfig::predicted_window_margin_m`] on each side. Its candidate counts only if
+    /// it puts the image centre within the margin of the prediction: farther, the window
+    /// may have cut the footprint, and the tile search decides.
+    #[allow(clippy::too_many_arguments)]
+    fn search_window(
+        &self,
+        store: &TileStore,
+        frame: &GrayImage,
+        ctx: &ViewContext<'_>,
+        predicted: (f64, f64),
+        angle: f64,
+        (scale, expected): (f64, f64),
+        views: &mut Vec<(f64, QueryView)>,
+        searched: &mut usize,
+        best_rejection: &mut Option<Rejection>,
+    ) -> Result<WindowOutcome> {
+        let id = self.view_at(frame, ctx, angle, scale, views)?;
+        let view = &views[id].1;
+        let margin = self.config.predicted_window_margin_m / self.tiles.gsd_m();
+        let (vw, vh) = view.normalised.image.dimensions();
+        let centre = self.tiles.world_to_pixel(predicted.0, predicted.1);
+        let half = (vw as f64 / 2.0 + margin, vh as f64 / 2.0 + margin);
+        let Some(w) = window::gather(&self.tiles, store, centre, half)? else {
+            return Ok(WindowOutcome::BeyondMargin);
+        };
+        let principal = (self.camera.cx, self.camera.cy);
+        let mctx = MatchContext {
+            matcher: self.pipeline.matcher.as_ref(),
+            homography: &self.config.homography,
+            accept: &self.config.accept,
+            principal,
+            expected_scale: Some(expected),
+        };
+        *searched += 1;
+        let c = match evaluate(&mctx, id, view, w.tile_index, &w.tile, &w.features)? {
+            Ok(c) => c,
+            Err(r) => {
+                tracing::trace!(rejection = ?r, keypoints = w.features.len(), "window: no fix");
+                *best_rejection = Some(r);
+                return Ok(WindowOutcome::NoFix);
+            }
+        };
+        let q = c.h_map_from_frame * Point2::new(principal.0, principal.1).to_homogeneous();
+        let off = ((q.x / q.z - centre.0).powi(2) + (q.y / q.z - centre.1).powi(2)).sqrt();
+        if off.is_nan() || off > margin {
+            tracing::debug!(
+                off_m = off * self.tiles.gsd_m(),
+                "window: fix beyond the margin, tiles decide"
+            );
+            return Ok(WindowOutcome::BeyondMargin);
+        }
+        Ok(WindowOutcome::Fix(c))
+    }
+
     #[allow(clippy::too_many_arguments)]
     fn search(
         &self,
@@ -1317,38 +1486,10 @@ impl AbsLocalizer {
         best_rejection: &mut Option<Rejection>,
     ) -> Result<Option<Candidate>> {
         let principal = (self.camera.cx, self.camera.cy);
-        let mut view_ids = Vec::with_capacity(angles.len());
-        for &a in angles {
-            let id = match views.iter().position(|(b, _)| angle_eq(*b, a)) {
-                Some(id) => id,
-                None => {
-                    let mut v = QueryView::through(
-                        frame,
-                        ctx.lens,
-                        self.pipeline.detector.as_ref(),
-                        principal,
-                        scale,
-                        a,
-                        self.config.accept.border_margin_px,
-                        self.max_view_size(),
-                    )?;
-                    if let Some(c) = ctx.coverage {
-                        // Keypoints next to the fill of a virtual frame see its edge.
-                        let keep: Vec<usize> = (0..v.features.len())
-                            .filter(|&i| {
-                                let [u, w] = v.features.keypoints[i];
-                                let (x, y) = v.normalised.transform.inverse(u as f64, w as f64);
-                                c.covers(x, y)
-                            })
-                            .collect();
-                        v.features = select(&v.features, &keep);
-                    }
-                    views.push((a, v));
-                    views.len() - 1
-                }
-            };
-            view_ids.push(id);
-        }
+        let view_ids = angles
+            .iter()
+            .map(|&a| self.view_at(frame, ctx, a, scale, views))
+            .collect::<Result<Vec<usize>>>()?;
         let input = SearchInput {
             tiles: &self.tiles,
             store,

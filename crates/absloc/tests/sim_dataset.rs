@@ -189,3 +189,57 @@ fn a_shortlisted_whole_map_search_finds_the_exhaustive_fixes() {
         assert!(d < 0.1, "exhaustive {a:?} vs shortlist {b:?}");
     }
 }
+
+/// In flight the fused pose predicts the frame's place: with the true position and heading as
+/// the prior (an oracle standing in for it), the predicted window fixes every frame of the
+/// coarse map from one matcher call, as accurately as the tiles around the prediction.
+#[test]
+fn the_predicted_window_fixes_every_frame_from_one_call_on_a_coarse_map() {
+    let dir = sim_dataset_medium();
+    let ds = UavDataset::open(dir).unwrap();
+    let cache_dir = tempfile::tempdir().unwrap();
+    let mut rmse = Vec::new();
+    let mut searched = Vec::new();
+    for margin in [0.0, 1.5] {
+        let config = AbsLocConfig {
+            cache_dir: Some(cache_dir.path().to_path_buf()),
+            predicted_window_margin_m: margin,
+            ..Default::default()
+        };
+        let tiles = MapTiles::open(dir).unwrap();
+        let pipeline = pipeline("xfeat-lighterglue");
+        let mut loc = AbsLocalizer::new(tiles, ds.camera, pipeline, config).unwrap();
+        let (mut sse, mut n, mut calls) = (0.0, 0usize, 0usize);
+        for f in &ds.frames {
+            let truth = f.ground_truth.unwrap();
+            let c = truth.centre();
+            let prior = Prior {
+                position: Some([c.x, c.y]),
+                heading: Some(jointloc_absloc::heading_from_rotation(
+                    &truth.rotation().to_rotation_matrix(),
+                )),
+            };
+            let img = image::open(&f.path).unwrap().into_luma8();
+            let out = loc.localize(&img, f.altitude.unwrap(), &prior).unwrap();
+            let fix = out
+                .fix()
+                .unwrap_or_else(|| panic!("margin {margin}: {}: {out:?}", f.path.display()));
+            if margin > 0.0 {
+                assert_eq!(fix.searched_tiles, 1, "{}", f.path.display());
+                assert!(!fix.global);
+            }
+            sse += (fix.position[0] - c.x).powi(2) + (fix.position[1] - c.y).powi(2);
+            n += 1;
+            calls += fix.searched_tiles;
+        }
+        rmse.push((sse / n as f64).sqrt());
+        searched.push(calls);
+    }
+    let (tiles, window) = (rmse[0], rmse[1]);
+    assert!(window < 0.3, "window rmse {window} m");
+    assert!(
+        window <= 1.25 * tiles + 0.01,
+        "window {window} m against tiles {tiles} m"
+    );
+    assert!(searched[1] < searched[0], "matcher calls {searched:?}");
+}

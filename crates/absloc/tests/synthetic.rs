@@ -189,6 +189,8 @@ fn inner_tiles_first_gives_the_exhaustive_fix_from_fewer_tiles() {
                 AbsLocConfig {
                     early_stop_inliers: None,
                     inner_tiles_first,
+                    // The tiles alone (the predicted window is the next test's).
+                    predicted_window_margin_m: 0.0,
                     ..Default::default()
                 },
             );
@@ -220,6 +222,97 @@ fn inner_tiles_first_gives_the_exhaustive_fix_from_fewer_tiles() {
             all.searched_tiles,
             inner.searched_tiles
         );
+    }
+}
+
+#[test]
+fn the_predicted_window_fixes_the_frame_from_one_matcher_call() {
+    for seed in [31, 32, 33] {
+        let config = |margin: f64, tiles_after_window: bool| AbsLocConfig {
+            predicted_window_margin_m: margin,
+            tiles_after_window,
+            ..Default::default()
+        };
+        let k = (seed - 30) as f64;
+        let (u, v) = (880.0 + 130.0 * k, 1240.0 - 90.0 * k);
+        let heading = 2.1 - 0.8 * k;
+        let mut fixes = Vec::new();
+        for margin in [0.0, 1.5] {
+            let mut loc = localizer(seed, 2000, config(margin, false));
+            let (x, y) = loc.tiles().pixel_to_world(u, v);
+            let prior = Prior {
+                position: Some([x + 0.3, y - 0.4]),
+                heading: Some(heading),
+            };
+            let out = loc
+                .localize(&frame(&loc, u, v, heading), ALT, &prior)
+                .unwrap();
+            let fix = out
+                .fix()
+                .unwrap_or_else(|| panic!("seed {seed}, margin {margin}: {out:?}"))
+                .clone();
+            let err = ((fix.position[0] - x).powi(2) + (fix.position[1] - y).powi(2)).sqrt();
+            assert!(err < 0.15, "seed {seed}, margin {margin}: {err} m");
+            fixes.push(fix);
+        }
+        let (tiles, window) = (&fixes[0], &fixes[1]);
+        assert_eq!(window.searched_tiles, 1, "seed {seed}");
+        assert!(!window.global);
+        assert!(tiles.searched_tiles >= 1);
+        // The same place, from keypoints of several tiles instead of one.
+        let d = ((window.position[0] - tiles.position[0]).powi(2)
+            + (window.position[1] - tiles.position[1]).powi(2))
+        .sqrt();
+        assert!(d < 0.05, "seed {seed}: {d} m apart");
+        assert_eq!(window.tile, tiles.tile, "seed {seed}");
+
+        // A prediction 4 m off (beyond the margin): the window may still match part of the
+        // footprint, but its fix is beyond the margin, and the tiles decide.
+        let mut loc = localizer(seed, 2000, config(1.5, false));
+        let (x, y) = loc.tiles().pixel_to_world(u, v);
+        let prior = Prior {
+            position: Some([x + 4.0, y]),
+            heading: Some(heading),
+        };
+        let out = loc
+            .localize(&frame(&loc, u, v, heading), ALT, &prior)
+            .unwrap();
+        let fix = out.fix().unwrap_or_else(|| panic!("seed {seed}: {out:?}"));
+        let err = ((fix.position[0] - x).powi(2) + (fix.position[1] - y).powi(2)).sqrt();
+        assert!(err < 0.15, "seed {seed}, prior 4 m off: {err} m");
+        assert!(
+            fix.searched_tiles > 1,
+            "seed {seed}: {}",
+            fix.searched_tiles
+        );
+
+        // A frame from elsewhere where the prior says: one matcher call and no fix, unless the
+        // tiles are asked for after the window.
+        for tiles_after_window in [false, true] {
+            let mut loc = localizer(seed, 2000, config(1.5, tiles_after_window));
+            let (x, y) = loc.tiles().pixel_to_world(u, v);
+            let prior = Prior {
+                position: Some([x, y]),
+                heading: Some(heading),
+            };
+            let elsewhere = frame(&loc, u + 700.0, v - 600.0, heading);
+            let out = loc.localize(&elsewhere, ALT, &prior).unwrap();
+            match (&out, tiles_after_window) {
+                (Outcome::Failed(f), false) => {
+                    assert_eq!(f.searched_tiles, 1, "seed {seed}");
+                    assert!(!f.global);
+                }
+                (Outcome::Fix(f), true) => {
+                    // The whole map, as before the window: the frame's true place.
+                    let (tx, ty) = loc.tiles().pixel_to_world(u + 700.0, v - 600.0);
+                    let err = ((f.position[0] - tx).powi(2) + (f.position[1] - ty).powi(2)).sqrt();
+                    assert!(err < 0.15, "seed {seed}: {err} m");
+                    assert!(f.searched_tiles > 1);
+                }
+                (Outcome::Failed(f), true) => assert!(f.searched_tiles > 1, "seed {seed}"),
+                _ => panic!("seed {seed}, tiles_after_window {tiles_after_window}: {out:?}"),
+            }
+        }
     }
 }
 

@@ -28,8 +28,8 @@ pub struct Args {
     /// Search the whole map for every fix (the paper's "w/o" ablation).
     #[arg(long)]
     no_area_prediction: bool,
-    /// Match every candidate tile (no early stop on a decisive tile, no shortlist), as the
-    /// paper does.
+    /// Match every candidate tile (no predicted window, no early stop on a decisive tile, no
+    /// shortlist), as the paper does.
     #[arg(long)]
     exhaustive: bool,
     /// A whole-map search matches every (rotation, tile) pair, nearest first, instead of the
@@ -45,6 +45,11 @@ pub struct Args {
     /// Give the true heading as the prior (an oracle standing in for the fused pose).
     #[arg(long)]
     heading_from_gt: bool,
+    /// Give the true position (x, y) as the prior (an oracle standing in for the fused pose):
+    /// with `--heading-from-gt`, the search starts with the predicted window
+    /// (`predicted_window_margin_m`), as in flight.
+    #[arg(long)]
+    position_from_gt: bool,
     /// Localiser settings (TOML, keys of `AbsLocConfig`); flags override it.
     #[arg(long, value_name = "TOML")]
     config: Option<PathBuf>,
@@ -100,6 +105,7 @@ fn config_of(args: &Args) -> anyhow::Result<AbsLocConfig> {
     }
     if args.exhaustive {
         cfg.early_stop_inliers = None;
+        cfg.predicted_window_margin_m = 0.0;
     }
     if args.exhaustive || args.no_shortlist {
         cfg.shortlist.candidates = 0;
@@ -191,7 +197,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             .with_context(|| format!("reading {}", f.path.display()))?
             .into_luma8();
         let prior = Prior {
-            position: None,
+            position: if args.position_from_gt {
+                f.ground_truth.map(|p| [p.centre().x, p.centre().y])
+            } else {
+                None
+            },
             heading: if args.heading_from_gt {
                 f.ground_truth
                     .map(|p| heading_from_rotation(&p.rotation().to_rotation_matrix()))
