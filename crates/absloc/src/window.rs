@@ -29,12 +29,15 @@ pub(crate) struct Window {
 }
 
 /// Gathers the keypoints within `half` map pixels (each axis) of map pixel `centre`, clipped
-/// to the map. `None` when the rectangle misses the map or no tile covers it.
+/// to the map, that `keep` (map pixels) accepts: the caller's footprint, a turned frame
+/// filling only part of its bounding box. `None` when the rectangle misses the map or no tile
+/// covers it.
 pub(crate) fn gather(
     tiles: &MapTiles,
     store: &TileStore,
     centre: (f64, f64),
     half: (f64, f64),
+    keep: impl Fn(f64, f64) -> bool,
 ) -> Result<Option<Window>> {
     let (mw, mh) = tiles.map().dimensions();
     let x0 = (centre.0 - half.0).floor().max(0.0);
@@ -87,7 +90,7 @@ pub(crate) fn gather(
         for k in 0..f.len() {
             let [ku, kv] = f.keypoints[k];
             let (u, v) = (ku as f64 + t.x as f64, kv as f64 + t.y as f64);
-            if u < x0 || u >= x1 || v < y0 || v >= y1 || owner(u, v) != Some(i) {
+            if u < x0 || u >= x1 || v < y0 || v >= y1 || !keep(u, v) || owner(u, v) != Some(i) {
                 continue;
             }
             features.keypoints.push([(u - x0) as f32, (v - y0) as f32]);
@@ -145,7 +148,7 @@ mod tests {
     fn each_point_once_from_the_nearest_tile() {
         let (tiles, store) = fixture();
         assert_eq!(tiles.len(), 6, "3 × 2 tiles");
-        let w = gather(&tiles, &store, (500.0, 375.0), (200.0, 150.0))
+        let w = gather(&tiles, &store, (500.0, 375.0), (200.0, 150.0), |_, _| true)
             .unwrap()
             .unwrap();
         assert_eq!((w.tile.x, w.tile.y), (300, 225));
@@ -179,16 +182,35 @@ mod tests {
     }
 
     #[test]
+    fn only_what_the_footprint_keeps() {
+        let (tiles, store) = fixture();
+        // A disc of radius 100 around the centre: about π/4 of the 200 × 200 square.
+        let keep = |u: f64, v: f64| (u - 500.0).hypot(v - 375.0) <= 100.0;
+        let w = gather(&tiles, &store, (500.0, 375.0), (100.0, 100.0), keep)
+            .unwrap()
+            .unwrap();
+        let n = w.features.len() as f64;
+        assert!(
+            (n / 400.0 - std::f64::consts::FRAC_PI_4).abs() < 0.05,
+            "{n}"
+        );
+        for k in &w.features.keypoints {
+            let (u, v) = (k[0] as f64 + 400.0, k[1] as f64 + 275.0);
+            assert!(keep(u, v), "({u}, {v})");
+        }
+    }
+
+    #[test]
     fn clipped_to_the_map_and_none_off_it() {
         let (tiles, store) = fixture();
-        let w = gather(&tiles, &store, (20.0, 30.0), (100.0, 100.0))
+        let w = gather(&tiles, &store, (20.0, 30.0), (100.0, 100.0), |_, _| true)
             .unwrap()
             .unwrap();
         assert_eq!((w.tile.x, w.tile.y), (0, 0));
         assert_eq!(w.features.image_size, (120, 130));
         assert_eq!(w.tile_index, 0);
         assert!(
-            gather(&tiles, &store, (-500.0, 30.0), (100.0, 100.0))
+            gather(&tiles, &store, (-500.0, 30.0), (100.0, 100.0), |_, _| true)
                 .unwrap()
                 .is_none()
         );
