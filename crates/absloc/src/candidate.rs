@@ -151,6 +151,15 @@ pub struct Candidate {
     pub heading: f64,
 }
 
+impl Candidate {
+    /// Map pixel of frame pixel `(x, y)` (the principal point: the ground point the fix
+    /// measures).
+    pub fn map_pixel(&self, (x, y): (f64, f64)) -> (f64, f64) {
+        let q = self.h_map_from_frame * Point2::new(x, y).to_homogeneous();
+        (q.x / q.z, q.y / q.z)
+    }
+}
+
 /// Why a tile was not accepted.
 #[derive(Debug, Clone, PartialEq)]
 pub enum Rejection {

@@ -1349,9 +1349,8 @@ impl AbsLocalizer {
         views: &mut Vec<(f64, QueryView)>,
         searched: &mut usize,
     ) -> Result<Candidate> {
-        let c =
-            best.h_map_from_frame * Point2::new(self.camera.cx, self.camera.cy).to_homogeneous();
-        let (x, y) = self.tiles.pixel_to_world(c.x / c.z, c.y / c.z);
+        let (u, v) = best.map_pixel((self.camera.cx, self.camera.cy));
+        let (x, y) = self.tiles.pixel_to_world(u, v);
         let others: Vec<usize> = self
             .tiles
             .containing(all, x, y)
@@ -1386,9 +1385,18 @@ impl AbsLocalizer {
         sweep(self.config.rotation_hypotheses)
     }
 
-    /// Best accepted candidate over `tiles` × `angles` (views are detected once per angle and
-    /// kept in `views` for reuse by a later pass), with the early stop. `rank`: a search with
-    /// no prior position, whose pairs are shortlisted by [`crate::shortlist`].
+    /// What every (view, tile) pair of a search shares: the matcher, the acceptance rules and
+    /// the frame-to-map scale expected from the altimeter.
+    fn match_context(&self, expected: f64) -> MatchContext<'_> {
+        MatchContext {
+            matcher: self.pipeline.matcher.as_ref(),
+            homography: &self.config.homography,
+            accept: &self.config.accept,
+            principal: (self.camera.cx, self.camera.cy),
+            expected_scale: Some(expected),
+        }
+    }
+
     /// The query view of `frame` turned by `angle`: its position in `views`, made and added
     /// the first time an angle is asked for.
     fn view_at(
@@ -1464,15 +1472,15 @@ impl AbsLocalizer {
         let Some(w) = window::gather(&self.tiles, store, centre, half, footprint)? else {
             return Ok(WindowOutcome::BeyondMargin);
         };
-        let mctx = MatchContext {
-            matcher: self.pipeline.matcher.as_ref(),
-            homography: &self.config.homography,
-            accept: &self.config.accept,
-            principal,
-            expected_scale: Some(expected),
-        };
         *searched += 1;
-        let c = match evaluate(&mctx, id, view, w.tile_index, &w.tile, &w.features)? {
+        let c = match evaluate(
+            &self.match_context(expected),
+            id,
+            view,
+            w.tile_index,
+            &w.tile,
+            &w.features,
+        )? {
             Ok(c) => c,
             Err(r) => {
                 tracing::trace!(rejection = ?r, keypoints = w.features.len(), "window: no fix");
@@ -1480,8 +1488,8 @@ impl AbsLocalizer {
                 return Ok(WindowOutcome::NoFix);
             }
         };
-        let q = c.h_map_from_frame * Point2::new(principal.0, principal.1).to_homogeneous();
-        let off = ((q.x / q.z - centre.0).powi(2) + (q.y / q.z - centre.1).powi(2)).sqrt();
+        let (u, v) = c.map_pixel(principal);
+        let off = (u - centre.0).hypot(v - centre.1);
         // The prior is the camera's x, y and the fix the ground point under its optical axis:
         // a tilt of the camera moves one from the other by the altitude's lever arm.
         let lever = altitude * self.config.predicted_window_tilt_deg.to_radians().tan();
@@ -1496,6 +1504,9 @@ impl AbsLocalizer {
         Ok(WindowOutcome::Fix(c))
     }
 
+    /// Best accepted candidate over `tiles` × `angles` (views are detected once per angle and
+    /// kept in `views` for reuse by a later pass), with the early stop. `rank`: a search with
+    /// no prior position, whose pairs are shortlisted by [`crate::shortlist`].
     #[allow(clippy::too_many_arguments)]
     fn search(
         &self,
@@ -1511,7 +1522,6 @@ impl AbsLocalizer {
         searched: &mut usize,
         best_rejection: &mut Option<Rejection>,
     ) -> Result<Option<Candidate>> {
-        let principal = (self.camera.cx, self.camera.cy);
         let view_ids = angles
             .iter()
             .map(|&a| self.view_at(frame, ctx, a, scale, views))
@@ -1519,13 +1529,7 @@ impl AbsLocalizer {
         let input = SearchInput {
             tiles: &self.tiles,
             store,
-            ctx: MatchContext {
-                matcher: self.pipeline.matcher.as_ref(),
-                homography: &self.config.homography,
-                accept: &self.config.accept,
-                principal,
-                expected_scale: Some(expected),
-            },
+            ctx: self.match_context(expected),
             parallel: self.config.parallel,
             early_stop_inliers: self.config.early_stop_inliers,
         };
@@ -1594,8 +1598,7 @@ impl AbsLocalizer {
         start: Instant,
     ) -> Fix {
         let h = best.h_map_from_frame;
-        let c = h * Point2::new(self.camera.cx, self.camera.cy).to_homogeneous();
-        let (u, v) = (c.x / c.z, c.y / c.z);
+        let (u, v) = best.map_pixel((self.camera.cx, self.camera.cy));
         let (x, y) = self.tiles.pixel_to_world(u, v);
         let ssim = self.ssim_of(frame, ctx, &h, best.scale).unwrap_or(0.0);
         let match_score = if best.inliers.is_empty() {

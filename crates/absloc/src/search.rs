@@ -8,7 +8,6 @@
 //! tile), the remaining, farther candidates are skipped; the most inliers among those matched
 //! still win. Without it every candidate is matched, exactly as the paper.
 
-use nalgebra::Point2;
 use rayon::prelude::*;
 
 use crate::candidate::{Candidate, MatchContext, QueryView, Rejection, evaluate};
@@ -115,8 +114,7 @@ pub(crate) fn run(
 
 /// Whether the candidate maps the image centre into the central 60 % of its tile (each axis).
 pub(crate) fn centred_in_its_tile(tiles: &MapTiles, c: &Candidate, principal: (f64, f64)) -> bool {
-    let q = c.h_map_from_frame * Point2::new(principal.0, principal.1).to_homogeneous();
-    let (u, v) = (q.x / q.z, q.y / q.z);
+    let (u, v) = c.map_pixel(principal);
     let t = tiles.tiles()[c.tile];
     let (w, h) = tiles.tile_size();
     let (du, dv) = (u - t.x as f64, v - t.y as f64);

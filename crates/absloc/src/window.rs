@@ -6,8 +6,9 @@
 //! (12.5 cm/px, upsampled) few tiles reach the early stop's 40 inliers and a fix matched
 //! 3.2 tiles on average, 137–270 ms each (`docs/absloc.md` §"Where a fix's time goes").
 //!
-//! A window is one matcher input instead: the keypoints of the rectangle around the
-//! predicted footprint, each taken from the tile whose centre is nearest to it. With tiles
+//! A window is one matcher input instead: the keypoints over the predicted footprint (the
+//! caller's test, within a rectangle around it), each taken from the tile whose centre is
+//! nearest to it. With tiles
 //! overlapping by half, that tile has the keypoint well inside it (its descriptor saw no
 //! tile border), and the window is seamless where a single tile would cut the footprint.
 
