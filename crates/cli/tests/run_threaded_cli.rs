@@ -7,15 +7,16 @@ mod common;
 
 use common::{base, dataset, jointloc, run_orb, s};
 
-/// Threaded: every due frame (one in 10) is either searched or counted as skipped, and the
-/// result is as good as the sequential run's.
+/// Threaded: every due frame (one in `fusion_every`) is either searched or counted as
+/// skipped, and the result is as good as the sequential run's.
 fn threaded_searches_or_skips_every_due_frame(seed: &str) {
     let frames = base(seed).summary["frames"].as_u64().unwrap();
     let dir = tempfile::tempdir().unwrap();
     let threaded = dir.path().join("threaded");
     let (stdout, t) = run_orb(seed, &threaded, &[]);
     assert_eq!(t["mode"], "threaded", "seed {seed}");
-    let due = frames.div_ceil(10);
+    let every = jointloc_system::JointLocConfig::default().fusion_every as u64;
+    let due = frames.div_ceil(every);
     let attempts = t["absolute_attempts"].as_u64().unwrap();
     let skipped = t["skipped_busy"].as_u64().unwrap() + t["skipped_untracked"].as_u64().unwrap();
     assert!(

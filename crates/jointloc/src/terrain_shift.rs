@@ -53,7 +53,7 @@ pub struct TerrainConfig {
     /// and the terrain is a wrong map or alignment, not a bias of the matching.
     pub max_offset_m: f64,
     /// The map points seen from the keyframes of the latest this-many fixes are put on the
-    /// model (0: those of the alignment's window). 5 (the last 10 m at the defaults): the
+    /// model (0: those of the alignment's window). 10 (the last 10 m at the defaults): the
     /// output is the current frame's pose, and the alignment's whole window (40 m) gave a
     /// correction that suited the older part of the map better than the newest.
     pub window: usize,
@@ -72,7 +72,7 @@ impl Default for TerrainConfig {
             huber: 1.0,
             tau_m: 0.03,
             max_offset_m: 0.5,
-            window: 5,
+            window: 10,
             min_points: 30,
             iterations: 10,
         }

@@ -29,7 +29,7 @@ fn implausible_altimeter_readings_are_dropped_and_counted_noise_is_kept() {
     let clean = frames(flight());
     let mut faulty = clean.clone();
     // NaN, inf, negative, zero; spikes of +25 m and −8 m (a lost echo), some on the frames
-    // that go to absolute localisation (every 10th), some between.
+    // that go to absolute localisation (every 5th), some between.
     let invalid = [(30, f64::NAN), (47, f64::INFINITY), (50, -4.0), (113, 0.0)];
     let jumps = [(70, 25.0), (91, -8.0), (140, 25.0)];
     for (i, a) in invalid {

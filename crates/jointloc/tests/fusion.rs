@@ -370,8 +370,13 @@ fn an_outage_is_counted_and_the_slam_carries_the_poses_through_it() {
     config.faults.outage_duration_s = 10.0;
     let source = TruthFixes::new(flight(), 0.1, 3);
     let (fused, outputs) = run(builder(flight(), config.clone(), source), &config);
-    // Every 10th frame at 5 Hz: one attempt each 2 s.
-    assert_eq!(outputs.summary.skipped_outage, 5, "{:?}", outputs.summary);
+    // Every `fusion_every`-th frame at 5 Hz (5: one attempt a second): 10 s of outage.
+    let expected = 50 / config.fusion_every;
+    assert_eq!(
+        outputs.summary.skipped_outage, expected,
+        "{:?}",
+        outputs.summary
+    );
     let during = fused
         .iter()
         .filter(|f| (18.0..28.0).contains(&f.timestamp))
