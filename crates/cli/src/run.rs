@@ -30,7 +30,8 @@ pub struct Args {
     /// Matcher of the absolute localisation (`jointloc match --list`; default xfeat-lighterglue).
     #[arg(long, value_name = "M")]
     matcher: Option<String>,
-    /// Absolute localisation on every K-th frame (the paper's fusion frequency).
+    /// Absolute localisation on every K-th frame (default 5; the paper's fusion frequency is
+    /// 10). The alignment's window stays `alignment_window` fixes (40).
     #[arg(long, value_name = "K")]
     fusion_every: Option<usize>,
     /// Confidence of the fixes: adaptive (SSIM × matching score), ssim, matching or fixed:V.
