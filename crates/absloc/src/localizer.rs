@@ -60,8 +60,8 @@ pub struct AbsLocConfig {
     /// When the predicted window gives no fix, search the tiles as without it (the local
     /// radius, then the whole map). Off (default): a prior with a heading is trusted, and the
     /// frame does not match where it is predicted to be; the caller leaves the heading out
-    /// when it doubts the prediction (JointLoc does every
-    /// `sweep_after_failures_aligned`-th failure in a row), and the tiles are searched then.
+    /// when it doubts the prediction (JointLoc does every `sweep_after_failing_s` of a failing
+    /// streak), and the tiles are searched then.
     /// A failed search costs one matcher call instead of the whole radius (50 tiles, 4 s,
     /// on a medium map).
     pub tiles_after_window: bool,

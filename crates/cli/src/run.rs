@@ -31,7 +31,8 @@ pub struct Args {
     #[arg(long, value_name = "M")]
     matcher: Option<String>,
     /// Absolute localisation on every K-th frame (default 5; the paper's fusion frequency is
-    /// 10). The alignment's window stays `alignment_window` fixes (40).
+    /// 10). The windows stay in seconds of flight (the alignment's `alignment_window_s`, 40):
+    /// K changes how many fixes they hold.
     #[arg(long, value_name = "K")]
     fusion_every: Option<usize>,
     /// Confidence of the fixes: adaptive (SSIM × matching score), ssim, matching or fixed:V.

@@ -18,7 +18,7 @@ pub struct JointLocConfig {
     /// detector + matcher pair whose fixes the fusion uses.
     pub matcher: String,
     /// Every k-th frame goes to absolute localisation. The paper's fusion frequency is 10;
-    /// 5 (a fix a second at 5 Hz, with the 40-fix window the same 40 m of flight) measured
+    /// 5 (a fix a second at 5 Hz; the alignment's window, 40 s, then holds 40) measured
     /// 0.073 → 0.063 m online and 0.047 → 0.044 m at the end on 18 held-out flights, at one
     /// predicted-window search (60–80 ms) more per 10 frames (`docs/jointloc.md` §"A fix
     /// every 5th frame").
@@ -64,13 +64,20 @@ pub struct JointLocConfig {
     /// `altitude_window_s` (the altimeter's noise is a share of the range). Below it, as at
     /// it (`docs/jointloc.md` §"At altitude on HiRISE-class maps").
     pub reference_altitude_m: f64,
-    /// The alignment is fitted to the most recent this-many fixes (0: all). SLAM drift
+    /// The alignment is fitted to the newest fixes, as many as this many seconds of flight
+    /// hold at the search rate (`fusion_every` frames at the camera's rate) when no search
+    /// fails; failed searches make the window reach further back (0: all fixes). SLAM drift
     /// (scale, yaw) makes one similarity for the whole flight a compromise that is worst at
     /// the current frame, the one being reported; too few fixes leave the fixes' noise in it.
-    /// 40 at a fix every 5th frame: the last 40 m at 1 m/s, the span that 20 fixes every 10th
-    /// frame covered (measured best of 10/20/30 on four development flights then,
-    /// `docs/jointloc.md` §"Choosing the defaults").
-    pub alignment_window: usize,
+    /// 40 s (40 m at 1 m/s; 40 fixes at a fix every 5th frame of 5 Hz): the span measured
+    /// best of 10 / 20 / 30 fixes every 10th frame on four development flights
+    /// (`docs/jointloc.md` §"Choosing the defaults"). In seconds, so that `fusion_every`
+    /// changes how many fixes the window holds and not how far back it reaches.
+    pub alignment_window_s: f64,
+    /// The window always holds at least this many fixes: with a fix every 100th frame (20 s
+    /// at 5 Hz) 40 s would hold two, fewer than `min_fixes`, and no pose would ever be
+    /// geo-referenced.
+    pub alignment_window_min_fixes: usize,
     /// Reported z: shifted by the mean of `ground + altimeter − z` over the last this-many
     /// seconds of tracked frames (see [`crate::altitude`]); 0: z from the alignment alone.
     pub altitude_window_s: f64,
@@ -89,11 +96,13 @@ pub struct JointLocConfig {
     /// The heading then comes from one fix, which may be wrong, and with it every search would
     /// fail; a sweep costs 8× a search with a heading.
     pub sweep_after_failures: usize,
-    /// The same once geo-referenced: the heading then comes from at least `min_fixes`
-    /// consistent fixes and the SLAM, and a failure is the matcher's, so sweeps are rare.
-    /// 20: every 100 frames of a failing streak at a fix every 5th frame (a sweep over the
-    /// search radius matched 392 tiles, 35 s, on a medium mountain map).
-    pub sweep_after_failures_aligned: usize,
+    /// Once geo-referenced, a failing streak's search goes without a heading (a sweep of the
+    /// rotations) each time the streak has lasted this many more seconds (0: never give it a
+    /// heading). The heading then comes from at least `min_fixes` consistent fixes and the
+    /// SLAM, and a failure is the matcher's, so sweeps are rare: 20 s (a sweep over the
+    /// search radius matched 392 tiles, 35 s, on a medium mountain map). In seconds, so that
+    /// `fusion_every` does not change how often a failing flight sweeps.
+    pub sweep_after_failing_s: f64,
     /// After this many seconds of lost tracking without a relocalisation, the SLAM map is set
     /// aside and a new one initialised, geo-referenced again by the next `min_fixes` fixes
     /// (0: wait for relocalisation for ever, as ORB-SLAM2). A UAV keeps flying over ground its
@@ -101,13 +110,13 @@ pub struct JointLocConfig {
     /// half the camera's footprint at 10 m.
     pub new_map_after_lost_s: f64,
     /// A map set aside after a loss is merged back into the new one once the new one's
-    /// alignment rests on this many fixes of its own (0: never; the outputs then concatenate
-    /// the maps). Both maps are tied to the world, so their alignments give the similarity
-    /// between them (`crate::map_merge`). 40, the alignment's window: from then on the
-    /// window holds no fix of the earlier map, whose placement rests on the new map's early
-    /// alignment. Maps not merged by the end of the flight are merged then, through the last
-    /// alignment.
-    pub merge_maps_after_fixes: usize,
+    /// alignment rests on as many fixes of its own as this many seconds hold at the search
+    /// rate (0: never; the outputs then concatenate the maps). Both
+    /// maps are tied to the world, so their alignments give the similarity between them
+    /// (`crate::map_merge`). 40 s, the alignment's window: from then on the window holds no
+    /// fix of the earlier map, whose placement rests on the new map's early alignment. Maps
+    /// not merged by the end of the flight are merged then, through the last alignment.
+    pub merge_maps_after_s: f64,
     /// While there is no world pose (tracking lost, a new map not yet geo-referenced), the
     /// search prior is the last world pose carried forward at the last ground velocity, for
     /// at most this many seconds (0: the last world pose as it is). A UAV keeps flying: 12 s
@@ -182,14 +191,15 @@ impl Default for JointLocConfig {
             estimate_camera_tilt: true,
             camera_tilt_min_deg: 0.5,
             reference_altitude_m: 10.0,
-            alignment_window: 40,
+            alignment_window_s: 40.0,
+            alignment_window_min_fixes: 10,
             altitude_window_s: 5.0,
             final_altitude_window_s: 30.0,
             start_position: None,
             sweep_after_failures: 2,
-            sweep_after_failures_aligned: 20,
+            sweep_after_failing_s: 20.0,
             new_map_after_lost_s: 5.0,
-            merge_maps_after_fixes: 40,
+            merge_maps_after_s: 40.0,
             dead_reckoning_max_s: 20.0,
             max_altitude_rate_mps: 15.0,
             first_fix_span_m: 20.0,
@@ -247,6 +257,13 @@ impl JointLocConfig {
         if self.min_fixes < 2 {
             return bad("min_fixes", self.min_fixes.to_string(), "at least 2");
         }
+        if self.alignment_window_min_fixes < self.min_fixes {
+            return bad(
+                "alignment_window_min_fixes",
+                self.alignment_window_min_fixes.to_string(),
+                "at least min_fixes",
+            );
+        }
         let ba = &self.slam.local_mapping.ba;
         // Finite and > 0 (`zero_ok` false) or ≥ 0 (true), checked in this order.
         for (field, value, zero_ok, reason) in [
@@ -291,6 +308,30 @@ impl JointLocConfig {
                 self.final_altitude_window_s,
                 true,
                 "must be finite and >= 0",
+            ),
+            (
+                "alignment_window_s",
+                self.alignment_window_s,
+                true,
+                "must be finite and >= 0 (0: all fixes)",
+            ),
+            (
+                "sweep_after_failing_s",
+                self.sweep_after_failing_s,
+                true,
+                "must be finite and >= 0 (0: never a heading)",
+            ),
+            (
+                "terrain.window_s",
+                self.terrain.window_s,
+                true,
+                "must be finite and >= 0 (0: the alignment's window)",
+            ),
+            (
+                "merge_maps_after_s",
+                self.merge_maps_after_s,
+                true,
+                "must be finite and >= 0 (0: never)",
             ),
             (
                 "new_map_after_lost_s",
@@ -440,7 +481,7 @@ mod tests {
     #[test]
     fn invalid_terrain_and_recovery_settings_are_rejected_with_their_field() {
         type Set = fn(&mut JointLocConfig);
-        let cases: [(Set, &str); 10] = [
+        let cases: [(Set, &str); 15] = [
             (|c| c.max_altitude_rate_mps = 0.0, "max_altitude_rate_mps"),
             (
                 |c| c.max_altitude_rate_mps = f64::NAN,
@@ -457,6 +498,17 @@ mod tests {
                 "dead_reckoning_max_s",
             ),
             (|c| c.camera_tilt_min_deg = -0.5, "camera_tilt_min_deg"),
+            (|c| c.alignment_window_s = f64::NAN, "alignment_window_s"),
+            (
+                |c| c.alignment_window_min_fixes = 2,
+                "alignment_window_min_fixes",
+            ),
+            (|c| c.sweep_after_failing_s = -1.0, "sweep_after_failing_s"),
+            (
+                |c| c.merge_maps_after_s = f64::INFINITY,
+                "merge_maps_after_s",
+            ),
+            (|c| c.terrain.window_s = -10.0, "terrain.window_s"),
         ];
         for (set, field) in cases {
             let mut c = JointLocConfig::default();

@@ -52,8 +52,8 @@ impl JointLoc {
     /// before it are left out (up to 1 m off after the map settled, on crater-easy-s103), so
     /// the online and end files cover the same frames.
     ///
-    /// Each pose goes through the alignment fitted to the `alignment_window` fixes nearest
-    /// to it in time (the latest alignment alone fits the recent fixes, and SLAM drift since
+    /// Each pose goes through the alignment fitted to the fixes nearest to it in time, as many
+    /// as the alignment's window holds online ([`JointLoc::alignment_window_fixes`]) (the latest alignment alone fits the recent fixes, and SLAM drift since
     /// an early frame would carry into it); then, with [`JointLocConfig::final_ba`], the
     /// whole map is bundle-adjusted once more in the world frame with every fix
     /// ([`crate::final_ba`]). z is altimeter-aided as online, over a window centred on the
@@ -251,7 +251,7 @@ impl JointLoc {
             system: self,
             times,
             ties,
-            window: self.config.alignment_window,
+            window: self.alignment_window_fixes(),
             part_ends,
             fits: BTreeMap::new(),
         }

@@ -48,6 +48,7 @@ pub mod error;
 pub mod faults;
 pub mod final_ba;
 pub mod fix_source;
+mod flight_time;
 pub mod ground;
 mod map_merge;
 pub mod observer;

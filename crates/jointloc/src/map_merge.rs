@@ -27,15 +27,16 @@ pub(crate) struct Mergeable {
 
 impl JointLoc {
     /// Merges the geo-referenced maps set aside into the current map when the current map has
-    /// its own alignment from at least `min_ties` ties (`at_end`: from any number); true when
-    /// one was merged (the caller re-fits the alignment).
+    /// its own alignment from as many fixes as `merge_maps_after_s` holds at the search rate
+    /// (`at_end`: from any number); true when one was merged (the caller re-fits the
+    /// alignment).
     pub(crate) fn merge_earlier_maps(&mut self, at_end: bool) -> bool {
-        let after = self.config.merge_maps_after_fixes;
+        let after = self.config.merge_maps_after_s;
         let Some(current) = self.alignment.as_ref().map(|a| a.sim3) else {
             return false;
         };
         let own_ties = self.ties.len();
-        if after == 0 || (!at_end && own_ties < after) {
+        if after <= 0.0 || (!at_end && own_ties < self.fixes_in(after, 1)) {
             return false;
         }
         let world_to_current = current.inverse();

@@ -84,6 +84,11 @@ pub struct JointLoc {
     /// Absolute searches failed since the last fix (see
     /// [`JointLocConfig::sweep_after_failures`]).
     failures_in_a_row: usize,
+    /// Frame times of the first and the latest search of the failing streak (see
+    /// [`JointLocConfig::sweep_after_failing_s`]).
+    failing_since: Option<(f64, f64)>,
+    /// The frame rate so far, which turns the windows in seconds into numbers of fixes.
+    pub(crate) clock: crate::flight_time::FrameClock,
     timing: FusionTiming,
     pub(crate) altitude: AltitudeFilter,
     /// Drops implausible altimeter readings, counting them.
@@ -194,6 +199,8 @@ impl JointLoc {
             provisional_strong: false,
             provisional_heading_agrees: true,
             failures_in_a_row: 0,
+            failing_since: None,
+            clock: Default::default(),
             timing: FusionTiming::default(),
             altitude,
             altimeter_gate,
@@ -264,7 +271,7 @@ impl JointLoc {
     }
 
     /// Maps set aside after a loss and merged back into the current one
-    /// ([`JointLocConfig::merge_maps_after_fixes`]).
+    /// ([`JointLocConfig::merge_maps_after_s`]).
     pub fn maps_merged(&self) -> usize {
         self.maps_merged
     }
@@ -344,6 +351,7 @@ impl JointLoc {
         self.first_frame_at.get_or_insert(start);
         let index = self.next_index;
         self.next_index += 1;
+        self.clock.tick(index, timestamp);
         let r = self
             .slam
             .process(GrayImageView::from(image), timestamp, altitude)?;
@@ -638,9 +646,12 @@ impl JointLoc {
         self.timing.absolute_ms.push(outcome.ms());
         let Outcome::Fix(fix) = &outcome else {
             self.failures_in_a_row += 1;
+            let first = self.failing_since.map_or(submitted.timestamp, |(t0, _)| t0);
+            self.failing_since = Some((first, submitted.timestamp));
             return Some(outcome);
         };
         self.failures_in_a_row = 0;
+        self.failing_since = None;
         let t0 = Instant::now();
         let used = self.tie_fix(fix, submitted);
         // Until the alignment exists, the latest usable fix predicts the next search: a wrong
@@ -782,10 +793,11 @@ impl JointLoc {
     /// (after a new map, the last world pose of the old one until then). A last world pose
     /// older than [`dead_reckoning::FRESH_S`] is carried forward at the last ground velocity
     /// (see [`JointLocConfig::dead_reckoning_max_s`]) and its heading left out.
-    /// Every [`JointLocConfig::sweep_after_failures`]-th search of a failing streak (or
-    /// [`JointLocConfig::sweep_after_failures_aligned`]-th once geo-referenced) leaves the
-    /// heading out, so the localiser sweeps rotations: the predicted heading may be what is
-    /// wrong (a wrong fix or alignment), and with it every search would fail.
+    /// Every [`JointLocConfig::sweep_after_failures`]-th search of a failing streak (once
+    /// geo-referenced, the search each time the streak has lasted another
+    /// [`JointLocConfig::sweep_after_failing_s`]) leaves the heading out, so the localiser
+    /// sweeps rotations: the predicted heading may be what is wrong (a wrong fix or
+    /// alignment), and with it every search would fail.
     ///
     /// A virtual frame with no take-off position, before any world pose
     /// ([`Self::unanchored`]), gets no prior: each fix the first alignment needs then comes
@@ -814,16 +826,21 @@ impl JointLoc {
                 .predict(timestamp, self.config.dead_reckoning_max_s),
             _ => None,
         };
-        let every = if self.alignment.is_some() {
-            self.config.sweep_after_failures_aligned
+        let sweep = if self.alignment.is_some() {
+            crate::flight_time::sweep_due(
+                self.failing_since,
+                timestamp,
+                self.config.sweep_after_failing_s,
+            )
         } else {
-            self.config.sweep_after_failures
+            let every = self.config.sweep_after_failures;
+            every == 0
+                || (self.failures_in_a_row != 0 && self.failures_in_a_row.is_multiple_of(every))
         };
         // A stale heading is a guess: the UAV may have turned while it was not tracked.
         let trust_heading = carried.is_none()
             && (from_last_world_pose || self.provisional_heading_agrees)
-            && every != 0
-            && (self.failures_in_a_row == 0 || !self.failures_in_a_row.is_multiple_of(every));
+            && !sweep;
         match predicted {
             Some(p) => Prior {
                 position: Some(carried.unwrap_or([p.centre().x, p.centre().y])),

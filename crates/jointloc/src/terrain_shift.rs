@@ -52,11 +52,12 @@ pub struct TerrainConfig {
     /// The correction never exceeds this, metres: a larger disagreement between the fixes
     /// and the terrain is a wrong map or alignment, not a bias of the matching.
     pub max_offset_m: f64,
-    /// The map points seen from the keyframes of the latest this-many fixes are put on the
-    /// model (0: those of the alignment's window). 10 (the last 10 m at the defaults): the
-    /// output is the current frame's pose, and the alignment's whole window (40 m) gave a
-    /// correction that suited the older part of the map better than the newest.
-    pub window: usize,
+    /// The map points seen from the keyframes of the newest fixes, as many as this many
+    /// seconds hold at the search rate, are put on the model (0: those of the alignment's
+    /// window). 10 s (the last 10 m at
+    /// 1 m/s): the output is the current frame's pose, and the alignment's whole window
+    /// (40 m) gave a correction that suited the older part of the map better than the newest.
+    pub window_s: f64,
     /// Fewer map points on the model give no estimate.
     pub min_points: usize,
     /// Gauss–Newton iterations at most.
@@ -72,7 +73,7 @@ impl Default for TerrainConfig {
             huber: 1.0,
             tau_m: 0.03,
             max_offset_m: 0.5,
-            window: 10,
+            window_s: 10.0,
             min_points: 30,
             iterations: 10,
         }

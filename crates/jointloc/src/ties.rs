@@ -10,6 +10,7 @@ use nalgebra::{Point3, Vector3};
 
 use crate::alignment::{self, Correspondence, SlamToWorld, Tolerance};
 use crate::camera_tilt;
+use crate::flight_time;
 use crate::system::{JointLoc, Submitted};
 use crate::terrain_shift::{TerrainConfig, estimate_shift};
 
@@ -114,10 +115,13 @@ impl JointLoc {
         for t in &mut self.ties {
             t.refresh(map, self.fixes[t.record].timestamp);
         }
-        let first = match self.config.alignment_window {
-            0 => 0,
-            w => self.ties.len().saturating_sub(w),
-        };
+        let first = self
+            .ties
+            .len()
+            .saturating_sub(match self.alignment_window_fixes() {
+                0 => usize::MAX,
+                n => n,
+            });
         if let (true, Some(previous)) = (
             self.config.estimate_camera_tilt,
             self.alignment.as_ref().map(|a| a.sim3),
@@ -229,6 +233,26 @@ impl JointLoc {
     /// Where the window's map points sit on the elevation model through the new alignment:
     /// the residual of the fixes' common bias, taken into the correction that the next refits
     /// add to every fix (see [`crate::terrain_shift`]).
+    /// How many fixes the alignment's window holds: those `alignment_window_s` holds at the
+    /// flight's search rate when none fails, and at least `alignment_window_min_fixes`; 0:
+    /// all. Failed searches make it reach further back, as a window of that many fixes.
+    pub(crate) fn alignment_window_fixes(&self) -> usize {
+        self.fixes_in(
+            self.config.alignment_window_s,
+            self.config.alignment_window_min_fixes,
+        )
+    }
+
+    /// The fixes a span of `span_s` seconds holds at the search rate (`fusion_every` frames
+    /// at the flight's frame rate so far), at least `min`; 0 when `span_s` is 0.
+    pub(crate) fn fixes_in(&self, span_s: f64, min: usize) -> usize {
+        let interval = self
+            .clock
+            .frame_period_s()
+            .map(|p| p * self.config.fusion_every as f64);
+        flight_time::fixes_in(span_s, interval, min)
+    }
+
     fn correct_by_terrain(&mut self, first: usize) {
         // A point is never held closer to the model than the model's stated precision (a
         // HiRISE-class DTM: 0.25 m against the 0.1 m default), as the ground factors:
@@ -255,9 +279,9 @@ impl JointLoc {
             return;
         }
         let map = self.slam.map();
-        let first = match config.window {
+        let first = match self.fixes_in(config.window_s, 1) {
             0 => first,
-            w => self.ties.len().saturating_sub(w),
+            n => self.ties.len().saturating_sub(n),
         };
         // The window keyframes' points, in id order.
         let ids: BTreeSet<MapPointId> = self.ties[first..]
