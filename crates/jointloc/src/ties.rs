@@ -297,7 +297,11 @@ impl JointLoc {
             .map(|p| a.sim3.transform_point(&Point3::from(p.position)))
             .collect();
         if let Some(estimate) = estimate_shift(&points, self.altitude.ground(), config) {
-            self.terrain.update(&estimate, config);
+            let at = self
+                .ties
+                .last()
+                .map_or(0.0, |t| self.fixes[t.record].timestamp);
+            self.terrain.update(&estimate, config, at);
             tracing::debug!(
                 shift = ?estimate.shift.as_slice(),
                 points = estimate.points,
