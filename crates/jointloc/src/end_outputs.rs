@@ -53,12 +53,12 @@ impl JointLoc {
     /// the online and end files cover the same frames.
     ///
     /// Each pose goes through the alignment fitted to the fixes nearest to it in time, as many
-    /// as the alignment's window holds online ([`JointLoc::alignment_window_fixes`]) (the latest alignment alone fits the recent fixes, and SLAM drift since
-    /// an early frame would carry into it); then, with [`JointLocConfig::final_ba`], the
-    /// whole map is bundle-adjusted once more in the world frame with every fix
-    /// ([`crate::final_ba`]). z is altimeter-aided as online, over a window centred on the
-    /// pose, from every frame's reading. Maps set aside after a loss come first, each as it
-    /// was at the loss.
+    /// as the alignment's window holds online (`alignment_window_fixes`): the latest alignment
+    /// alone fits the recent fixes, and SLAM drift since an early frame would carry into it.
+    /// Then, with [`JointLocConfig::final_ba`], the whole map is bundle-adjusted once more in
+    /// the world frame with every fix ([`crate::final_ba`]). z is altimeter-aided as online,
+    /// over a window centred on the pose, from every frame's reading. Maps set aside after a
+    /// loss come first, each as it was at the loss.
     pub(crate) fn end_outputs(&self) -> Result<EndOutputs> {
         let current = self.map_end_outputs()?;
         let frames = self.earlier_maps.iter().map(|m| m.frames.as_ref());

@@ -230,9 +230,6 @@ impl JointLoc {
         span >= c.first_fix_span_m
     }
 
-    /// Where the window's map points sit on the elevation model through the new alignment:
-    /// the residual of the fixes' common bias, taken into the correction that the next refits
-    /// add to every fix (see [`crate::terrain_shift`]).
     /// How many fixes the alignment's window holds: those `alignment_window_s` holds at the
     /// flight's search rate when none fails, and at least `alignment_window_min_fixes`; 0:
     /// all. Failed searches make it reach further back, as a window of that many fixes.
@@ -253,6 +250,9 @@ impl JointLoc {
         flight_time::fixes_in(span_s, interval, min)
     }
 
+    /// Where the window's map points sit on the elevation model through the new alignment:
+    /// the residual of the fixes' common bias, taken into the correction that the next refits
+    /// add to every fix (see [`crate::terrain_shift`]).
     fn correct_by_terrain(&mut self, first: usize) {
         // A point is never held closer to the model than the model's stated precision (a
         // HiRISE-class DTM: 0.25 m against the 0.1 m default), as the ground factors:
