@@ -46,7 +46,7 @@ impl GroundTrack {
         self.recent.back().copied()
     }
 
-    /// Ground velocity (m/s) over the window; `None` before it spans [`MIN_SPAN_S`].
+    /// Ground velocity (m/s) over the window; `None` before it spans half a second.
     pub fn velocity(&self) -> Option<[f64; 2]> {
         let (&(t0, a), &(t1, b)) = (self.recent.front()?, self.recent.back()?);
         let dt = t1 - t0;
