@@ -111,9 +111,8 @@ pub struct JointLocConfig {
     pub new_map_after_lost_s: f64,
     /// A map set aside after a loss is merged back into the new one once the new one's
     /// alignment rests on as many fixes of its own as this many seconds hold at the search
-    /// rate (0: never; the outputs then concatenate the maps). Both
-    /// maps are tied to the world, so their alignments give the similarity between them
-    /// (`crate::map_merge`). 40 s, the alignment's window: from then on the window holds no
+    /// rate (0: never; the outputs then concatenate the maps). Both maps are tied to the
+    /// world, so their alignments give the similarity between them (`crate::map_merge`). 40 s, the alignment's window: from then on the window holds no
     /// fix of the earlier map, whose placement rests on the new map's early alignment. Maps
     /// not merged by the end of the flight are merged then, through the last alignment.
     pub merge_maps_after_s: f64,

@@ -59,9 +59,9 @@ pub struct TerrainConfig {
     pub max_offset_m: f64,
     /// The map points seen from the keyframes of the newest fixes, as many as this many
     /// seconds hold at the search rate, are put on the model (0: those of the alignment's
-    /// window). 10 s (the last 10 m at
-    /// 1 m/s): the output is the current frame's pose, and the alignment's whole window
-    /// (40 m) gave a correction that suited the older part of the map better than the newest.
+    /// window). 10 s (the last 10 m at 1 m/s): the output is the current frame's pose, and the
+    /// alignment's whole window (40 m) gave a correction that suited the older part of the map
+    /// better than the newest.
     pub window_s: f64,
     /// Fewer map points on the model give no estimate.
     pub min_points: usize,

@@ -115,13 +115,10 @@ impl JointLoc {
         for t in &mut self.ties {
             t.refresh(map, self.fixes[t.record].timestamp);
         }
-        let first = self
-            .ties
-            .len()
-            .saturating_sub(match self.alignment_window_fixes() {
-                0 => usize::MAX,
-                n => n,
-            });
+        let first = match self.alignment_window_fixes() {
+            0 => 0,
+            n => self.ties.len().saturating_sub(n),
+        };
         if let (true, Some(previous)) = (
             self.config.estimate_camera_tilt,
             self.alignment.as_ref().map(|a| a.sim3),
