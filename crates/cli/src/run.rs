@@ -14,6 +14,7 @@ use std::path::PathBuf;
 
 use anyhow::Context;
 use jointloc_absloc::{ConfidenceMode, MapTiles};
+use jointloc_formats::outputs::settings_toml;
 use jointloc_formats::read_camera_yaml;
 use jointloc_system::faults::BlindCamera;
 use jointloc_system::{JointLoc, Mode, Outputs};
@@ -21,12 +22,12 @@ use jointloc_system::{JointLoc, Mode, Outputs};
 #[derive(Debug, clap::Args)]
 pub struct Args {
     /// Dataset folder (uav/, camera.yaml, map.toml + satellite map; docs/architecture.md).
-    #[arg(long)]
-    dataset: PathBuf,
+    #[arg(long, required_unless_present = "print_config")]
+    dataset: Option<PathBuf>,
     /// Output folder: trajectory.tum (online), trajectory-final.tum and keyframes.tum (as known
-    /// at the end), fixes.txt, timing.json, summary.json.
-    #[arg(long)]
-    out: PathBuf,
+    /// at the end), fixes.txt, timing.json, summary.json, config.toml (the settings used).
+    #[arg(long, required_unless_present = "print_config")]
+    out: Option<PathBuf>,
     /// Matcher of the absolute localisation (`jointloc match --list`; default xfeat-lighterglue).
     #[arg(long, value_name = "M")]
     matcher: Option<String>,
@@ -60,9 +61,14 @@ pub struct Args {
     /// instead of searching the whole map.
     #[arg(long, value_name = "X,Y")]
     start: Option<String>,
-    /// Settings (TOML, `JointLocConfig` with [slam] and [absloc] tables); flags override it.
+    /// Settings (TOML, `JointLocConfig` with [slam] and [absloc] tables; fields left out keep
+    /// their defaults); flags override it. A run's own `config.toml` repeats it.
     #[arg(long, value_name = "PATH")]
     config: Option<PathBuf>,
+    /// Print the settings (the defaults, `--config` and the flags, merged and validated) as
+    /// TOML and exit without running: a starting point for a `--config` file.
+    #[arg(long)]
+    print_config: bool,
     /// Process only the first N frames.
     #[arg(long, value_name = "N")]
     max_frames: Option<usize>,
@@ -93,16 +99,24 @@ enum OutCrs {
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
-    Outputs::check_writable(&args.out, args.force)
-        .context("the output folder holds a previous run (use --force to overwrite it)")?;
     let config = settings::settings(&args)?;
-    let camera = read_camera_yaml(&args.dataset.join("camera.yaml"))?.camera;
+    if args.print_config {
+        print!("{}", settings_toml(&config).map_err(anyhow::Error::msg)?);
+        return Ok(());
+    }
+    // clap requires both unless --print-config.
+    let (Some(dataset), Some(out)) = (&args.dataset, &args.out) else {
+        anyhow::bail!("--dataset and --out are required");
+    };
+    Outputs::check_writable(out, args.force)
+        .context("the output folder holds a previous run (use --force to overwrite it)")?;
+    let camera = read_camera_yaml(&dataset.join("camera.yaml"))?.camera;
     let size = (camera.width, camera.height);
-    let (sequence, mut source) = tolerant::FrameSource::open(&args.dataset, args.strict)?;
-    let tiles = MapTiles::open(&args.dataset)?;
+    let (sequence, mut source) = tolerant::FrameSource::open(dataset, args.strict)?;
+    let tiles = MapTiles::open(dataset)?;
     let map_crs = match args.out_crs {
         OutCrs::Local => None,
-        OutCrs::Map => Some(settings::map_crs(&args.dataset)?),
+        OutCrs::Map => Some(settings::map_crs(dataset)?),
     };
     let n = args.max_frames.unwrap_or(usize::MAX).min(sequence.len());
     let mode = if args.sequential {
@@ -146,9 +160,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     if let Some(crs) = &map_crs {
         outputs.into_map_frame(crs);
     }
-    outputs.write(&args.out, args.force)?;
+    outputs.write(out, args.force)?;
     report::print(&outputs);
-    report::evaluate_against_ground_truth(&args.dataset, &args.out, &mut outputs)?;
-    println!("wrote {}", args.out.display());
+    report::evaluate_against_ground_truth(dataset, out, &mut outputs)?;
+    println!("wrote {}", out.display());
     Ok(())
 }

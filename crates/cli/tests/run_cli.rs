@@ -1,8 +1,8 @@
 //! `jointloc run` end to end on a small simulated dataset with the ORB matcher (no model files
 //! needed), sequential: world-frame trajectory without any alignment, fixes, final global BA;
 //! a start position narrows the first search; the altimeter aid moves z only, towards the
-//! truth; outputs are not replaced without `--force`; a bad dataset or bad settings are a
-//! clear error. (Threaded and real-time replay: `run_threaded_cli.rs`; injected faults:
+//! truth; outputs are not replaced without `--force`; the settings a run writes repeat it; a
+//! bad dataset or bad settings are a clear error. (Threaded and real-time replay: `run_threaded_cli.rs`; injected faults:
 //! `run_faults_cli.rs`.)
 
 mod common;
@@ -21,6 +21,7 @@ fn base_run_in_the_world_frame(seed: &str) {
         "fixes.txt",
         "timing.json",
         "summary.json",
+        "config.toml",
     ] {
         assert!(out.join(f).exists(), "seed {seed}: {f}\n{stdout}");
     }
@@ -163,6 +164,66 @@ fn start_position_narrows_the_first_search_seed_31() {
 #[test]
 fn start_position_narrows_the_first_search_seed_32() {
     start_position_narrows_the_first_search("32");
+}
+
+/// A run's `config.toml` repeats it: the base run again with `--config <its config.toml>` and
+/// `--sequential` alone (the matcher comes from the file) writes the same trajectories, byte
+/// for byte.
+#[test]
+fn the_settings_a_run_writes_repeat_it() {
+    let base = base("31");
+    let written = base.out.join("config.toml");
+    let text = std::fs::read_to_string(&written).unwrap();
+    assert!(text.contains("matcher = \"orb\""), "{text}");
+    let dir = tempfile::tempdir().unwrap();
+    let again = dir.path().join("again");
+    let run = jointloc(&[
+        "run",
+        "--dataset",
+        s(&dataset("31")),
+        "--out",
+        s(&again),
+        "--sequential",
+        "--config",
+        s(&written),
+    ]);
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    for f in ["trajectory.tum", "trajectory-final.tum", "config.toml"] {
+        let (a, b) = (base.out.join(f), again.join(f));
+        assert!(
+            std::fs::read(&a).unwrap() == std::fs::read(&b).unwrap(),
+            "{f} differs"
+        );
+    }
+}
+
+/// `--print-config` prints the merged settings as TOML and runs nothing (no dataset needed);
+/// a flag shows in it, and bad settings are refused as in a run.
+#[test]
+fn print_config_shows_the_merged_settings() {
+    let out = jointloc(&["run", "--print-config", "--fusion-every", "7"]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let text = String::from_utf8_lossy(&out.stdout);
+    let value: toml::Table = toml::from_str(&text).unwrap();
+    assert_eq!(value["fusion_every"].as_integer(), Some(7), "{text}");
+    assert!(
+        value["slam"]["orb"]["n_features"].as_integer().is_some(),
+        "{text}"
+    );
+    let bad = jointloc(&["run", "--print-config", "--fusion-every", "0"]);
+    assert!(!bad.status.success());
+    assert!(String::from_utf8_lossy(&bad.stderr).contains("fusion_every"));
+    let none = jointloc(&["run", "--matcher", "orb"]);
+    assert!(!none.status.success());
+    assert!(String::from_utf8_lossy(&none.stderr).contains("--dataset"));
 }
 
 /// The altimeter aid moves z only, and towards the truth: the same run without it

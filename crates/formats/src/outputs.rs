@@ -6,17 +6,20 @@
 //!   `evo` reads it as it is and a person sees every frame ([`online`]);
 //! - `fixes.txt`: the absolute fixes with their confidence and fate in the fusion
 //!   ([`fixes`]);
-//! - `summary.json` and `timing.json`: counts, rates and per-module medians ([`summary`]).
+//! - `summary.json` and `timing.json`: counts, rates and per-module medians ([`summary`]);
+//! - `config.toml`: the settings the run used ([`settings`]).
 //!
 //! The trajectories as known at the end (`trajectory-final.tum`, `keyframes.tum`) are plain
 //! TUM, written by [`jointloc_geometry::trajectory::Trajectory::write_tum`].
 
 pub mod fixes;
 pub mod online;
+pub mod settings;
 pub mod summary;
 
 pub use fixes::{FixRow, read_fixes, write_fixes};
 pub use online::{OnlineFrame, OnlineStatus, read_online_tum, write_online_tum};
+pub use settings::{settings_toml, write_settings_toml};
 pub use summary::{
     CameraTiltSummary, FinalBaStats, OutputCrs, RealtimeSummary, Summary, TerrainSummary,
     TimingSummary, read_json, write_json,

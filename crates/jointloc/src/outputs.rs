@@ -7,12 +7,13 @@ use std::path::Path;
 use jointloc_formats::MapCrs;
 use jointloc_formats::outputs::{
     OnlineFrame, OnlineStatus, OutputCrs, Summary, TerrainSummary, TimingSummary, write_fixes,
-    write_json, write_online_tum,
+    write_json, write_online_tum, write_settings_toml,
 };
 use jointloc_geometry::trajectory::Trajectory;
 use jointloc_slam::system::median;
 use nalgebra::Vector3;
 
+use crate::config::JointLocConfig;
 use crate::error::{JointLocError, Result};
 use crate::system::{FixRecord, JointLoc};
 
@@ -32,6 +33,8 @@ pub struct Outputs {
     pub summary: Summary,
     /// Per-module medians (`timing.json`).
     pub timing: TimingSummary,
+    /// The settings the run used (`config.toml`): `--config` repeats the run with them.
+    pub config: JointLocConfig,
 }
 
 impl Outputs {
@@ -67,13 +70,14 @@ impl Outputs {
     }
 
     /// The files [`Outputs::write`] writes.
-    pub const FILES: [&str; 6] = [
+    pub const FILES: [&str; 7] = [
         "trajectory.tum",
         "trajectory-final.tum",
         "keyframes.tum",
         "fixes.txt",
         "timing.json",
         "summary.json",
+        "config.toml",
     ];
 
     /// Fails, naming the file, if `dir` already holds one of [`Outputs::FILES`] and
@@ -111,6 +115,7 @@ impl Outputs {
         let rows: Vec<_> = self.fixes.iter().map(FixRecord::to_row).collect();
         write_fixes(&dir.join("fixes.txt"), &rows)?;
         write_json(&dir.join("timing.json"), &self.timing)?;
+        write_settings_toml(&dir.join("config.toml"), CONFIG_HEADER, &self.config)?;
         self.write_summary(dir)
     }
 
@@ -198,9 +203,14 @@ impl JointLoc {
             fixes: fixes.to_vec(),
             summary,
             timing,
+            config: self.config.clone(),
         })
     }
 }
+
+/// The comment at the top of `config.toml`.
+const CONFIG_HEADER: &str = "The settings of this run: the defaults, the --config file and the flags, merged.\n\
+    `jointloc run --config config.toml` runs with them again (flags still override them).";
 
 /// Frames with a world pose in `online`.
 fn world_poses(online: &[OnlineFrame]) -> usize {

@@ -111,6 +111,9 @@ fn the_end_outputs_cover_the_geo_referenced_frames_and_are_written_once() {
     }
     let rows = read_fixes(&dir.path().join("fixes.txt")).unwrap();
     assert_eq!(rows.len(), outputs.fixes.len());
+    let settings = std::fs::read_to_string(dir.path().join("config.toml")).unwrap();
+    let settings: JointLocConfig = toml::from_str(&settings).unwrap();
+    assert_eq!(settings, outputs.config);
     let e = outputs.write(dir.path(), false).unwrap_err().to_string();
     assert!(
         e.contains("trajectory.tum") && e.contains("already exists"),
