@@ -31,6 +31,11 @@ pub struct JointLocConfig {
     pub min_fixes: usize,
     /// Alignment RANSAC inlier threshold, metres (world frame).
     pub inlier_threshold_m: f64,
+    /// The alignment's inliers are then reweighted (Cauchy) on their horizontal residuals,
+    /// at a scale of 3 robust σ of the residuals but at least this many metres; 0: off. It
+    /// takes most of the weight from an inlier fix a metre off while the others agree to a
+    /// decimetre, which matters while an alignment rests on few fixes.
+    pub alignment_robust_floor_m: f64,
     /// Alignment RANSAC hypotheses.
     pub ransac_iterations: usize,
     /// Weight, relative to the fix's, of the nadir prior that pairs the point under each fix's
@@ -184,6 +189,7 @@ impl Default for JointLocConfig {
             min_confidence: 0.05,
             min_fixes: 3,
             inlier_threshold_m: 2.0,
+            alignment_robust_floor_m: 0.0,
             ransac_iterations: 200,
             nadir_weight: 0.3,
             nadir_sigma_scale: 0.25,
@@ -271,6 +277,12 @@ impl JointLocConfig {
                 self.inlier_threshold_m,
                 false,
                 "must be finite and > 0",
+            ),
+            (
+                "alignment_robust_floor_m",
+                self.alignment_robust_floor_m,
+                true,
+                "must be finite and ≥ 0 (0: off)",
             ),
             (
                 "nadir_weight",

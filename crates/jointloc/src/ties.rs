@@ -403,6 +403,7 @@ impl JointLoc {
             self.config.ransac_iterations,
             self.config.min_fixes,
             self.config.seed,
+            self.config.alignment_robust_floor_m,
         )
     }
 }
