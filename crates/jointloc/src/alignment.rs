@@ -316,8 +316,8 @@ mod tests {
 
     /// A young alignment: 6 fixes over 10 m with 3 cm of noise, one of them 1 m off (inside
     /// the 2 m bound). Plain, the one pulls the similarity by decimetres at the newest fix
-    /// (0.36 m, the worst of 5 seeds); reweighted, by centimetres (0.07 m). With every fix as
-    /// good, the reweighted fit is the plain one to 3 cm.
+    /// (0.36 m, the worst of 5 seeds); reweighted at the default floor of 0.5 m, by 0.12 m.
+    /// With every fix as good, the reweighted fit is the plain one to 3 cm.
     #[test]
     fn a_fix_a_metre_off_among_a_few_good_ones_is_weighted_down() {
         let t = truth();
@@ -326,7 +326,7 @@ mod tests {
         for seed in 0..5 {
             let (p, _) = pairs(seed, 0.0, 0.03);
             let mut p: Vec<_> = p.into_iter().filter(|c| c.fix < 6).collect();
-            let clean = fit(&p, 200, 3, seed, 0.2).expect("fit");
+            let clean = fit(&p, 200, 3, seed, 0.5).expect("fit");
             let plain_clean = fit(&p, 200, 3, seed, 0.0).expect("fit");
             let d = clean.sim3.transform_point(&ahead) - plain_clean.sim3.transform_point(&ahead);
             assert!(d.norm() < 0.03, "seed {seed}: {}", d.norm());
@@ -340,10 +340,13 @@ mod tests {
                 (f.sim3.transform_point(&ahead) - t.transform_point(&ahead)).norm()
             };
             worst_plain = worst_plain.max(err(0.0));
-            worst_robust = worst_robust.max(err(0.2));
+            worst_robust = worst_robust.max(err(0.5));
         }
         assert!(worst_plain > 0.2, "plain {worst_plain}");
-        assert!(worst_robust < 0.3 * worst_plain, "{worst_robust} vs {worst_plain}");
+        assert!(
+            worst_robust < 0.4 * worst_plain,
+            "{worst_robust} vs {worst_plain}"
+        );
     }
 
     #[test]

@@ -34,7 +34,10 @@ pub struct JointLocConfig {
     /// The alignment's inliers are then reweighted (Cauchy) on their horizontal residuals,
     /// at a scale of 3 robust σ of the residuals but at least this many metres; 0: off. It
     /// takes most of the weight from an inlier fix a metre off while the others agree to a
-    /// decimetre, which matters while an alignment rests on few fixes.
+    /// decimetre, which matters while an alignment rests on few fixes. 0.5 m: at 0.2 m it
+    /// also took weight from the newest fixes where the SLAM's drift bends the window, and
+    /// the output between starts was worse (`docs/jointloc.md` §"A robust alignment and a
+    /// slower terrain correction").
     pub alignment_robust_floor_m: f64,
     /// Alignment RANSAC hypotheses.
     pub ransac_iterations: usize,
@@ -189,7 +192,7 @@ impl Default for JointLocConfig {
             min_confidence: 0.05,
             min_fixes: 3,
             inlier_threshold_m: 2.0,
-            alignment_robust_floor_m: 0.0,
+            alignment_robust_floor_m: 0.5,
             ransac_iterations: 200,
             nadir_weight: 0.3,
             nadir_sigma_scale: 0.25,

@@ -34,11 +34,11 @@ pub struct TerrainConfig {
     /// correction's time constant does not depend on how often fixes come. The map points
     /// are also held on the model by the local BA's ground factors, which take up part of a
     /// shift before it is measured, so one estimate sees only about a third of the bias; the
-    /// correction converges over successive fixes. 0.163 per second is the 0.3 per fix that
-    /// measured better than 0.6 on mountain medium at a fix every 10th frame (`docs/jointloc.md`
-    /// §"Terrain correction"); taken per fix at a fix every 5th frame it had doubled the pace,
-    /// and per second the 18 flights of seeds 4001–4003 went 0.0632 → 0.0607 m online,
-    /// 0.0438 → 0.0416 m at the end (§"The windows in seconds of flight").
+    /// correction converges over successive fixes. 0.08 per second (a time constant of 12 s),
+    /// half the pace of the 0.3 per fix every 2 s tuned at a fix every 10th frame
+    /// (`docs/jointloc.md` §"Terrain correction"): over gravel, where the fixes share little
+    /// bias, a faster correction follows noise (§"The windows in seconds of flight",
+    /// §"A robust alignment and a slower terrain correction").
     pub gain: f64,
     /// A camera whose horizontal field of view is wider than this many degrees gets no
     /// correction (gain 0). Over a footprint several times the altitude wide, a tilt of the
@@ -72,7 +72,7 @@ pub struct TerrainConfig {
 impl Default for TerrainConfig {
     fn default() -> Self {
         Self {
-            gain: 0.163,
+            gain: 0.08,
             max_fov_deg: 90.0,
             sigma_m: 0.1,
             huber: 1.0,
