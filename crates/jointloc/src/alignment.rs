@@ -149,11 +149,12 @@ pub fn spread_m(points: &[[f64; 2]]) -> f64 {
 }
 
 /// Iteratively reweighted refit of the inliers: each fix's weight times a Cauchy factor
-/// `1 / (1 + (r / c)²)` of its horizontal residual `r` (the first correspondence of the fix,
-/// its ground point: the x, y a wrong match gets wrong), `c` = 3 × the residuals' robust σ
-/// (1.4826 × median), at least `floor_m`. The 2 m inlier bound keeps fixes a metre off
-/// whose weight, among the few fixes of a young alignment, pulls it by decimetres; the
-/// Cauchy factor gives them a tenth of their weight once the others agree to a decimetre.
+/// `1 / (1 + (r / c)²)` of its horizontal residual `r` (of the fix's first correspondence,
+/// which the caller makes its ground point: the x, y a wrong match gets wrong), `c` = 3 × the
+/// residuals' robust σ (1.4826 × median), at least `floor_m`. The 2 m inlier bound keeps
+/// fixes a metre off whose weight, among the few fixes of a young alignment, pulls it by
+/// decimetres; at the default floor of 0.5 m such a fix keeps a fifth of its weight once the
+/// others agree to a decimetre.
 fn robust_refit(pairs: &[Correspondence], ok: &[bool], start: Sim3, floor_m: f64) -> Sim3 {
     let mut sim3 = start;
     for _ in 0..4 {

@@ -33,8 +33,8 @@ pub struct JointLocConfig {
     pub inlier_threshold_m: f64,
     /// The alignment's inliers are then reweighted (Cauchy) on their horizontal residuals,
     /// at a scale of 3 robust σ of the residuals but at least this many metres; 0: off. It
-    /// takes most of the weight from an inlier fix a metre off while the others agree to a
-    /// decimetre, which matters while an alignment rests on few fixes. 0.5 m: at 0.2 m it
+    /// takes four fifths of the weight from an inlier fix a metre off while the others agree
+    /// to a decimetre, which matters while an alignment rests on few fixes. 0.5 m: at 0.2 m it
     /// also took weight from the newest fixes where the SLAM's drift bends the window, and
     /// the output between starts was worse (`docs/jointloc.md` §"A robust alignment and a
     /// slower terrain correction").

@@ -380,6 +380,7 @@ impl JointLoc {
         for i in range {
             let t = &ties[i];
             let loose = self.config.range_looseness(t.altitude);
+            // The ground pair first: the robust refit reads a fix's residual from it.
             pairs.push(Correspondence {
                 slam: t.slam_ground,
                 world: self.corrected(&t.world_ground),
