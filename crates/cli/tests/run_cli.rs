@@ -2,8 +2,8 @@
 //! needed), sequential: world-frame trajectory without any alignment, fixes, final global BA;
 //! a start position narrows the first search; the altimeter aid moves z only, towards the
 //! truth; outputs are not replaced without `--force`; the settings a run writes repeat it; a
-//! bad dataset or bad settings are a clear error. (Threaded and real-time replay: `run_threaded_cli.rs`; injected faults:
-//! `run_faults_cli.rs`.)
+//! bad dataset or bad settings are a clear error. (Threaded and real-time replay:
+//! `run_threaded_cli.rs`; injected faults: `run_faults_cli.rs`.)
 
 mod common;
 

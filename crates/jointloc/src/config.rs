@@ -36,8 +36,8 @@ pub struct JointLocConfig {
     /// takes four fifths of the weight from an inlier fix a metre off while the others agree
     /// to a decimetre, which matters while an alignment rests on few fixes. 0.5 m: at 0.2 m it
     /// also took weight from the newest fixes where the SLAM's drift bends the window, and
-    /// the output between starts was worse (`docs/jointloc.md` §"A robust alignment and a
-    /// slower terrain correction").
+    /// the output after the first 10 s of geo-referencing was worse (`docs/jointloc.md` §"A
+    /// robust alignment and a slower terrain correction").
     pub alignment_robust_floor_m: f64,
     /// Alignment RANSAC hypotheses.
     pub ransac_iterations: usize,
@@ -120,9 +120,10 @@ pub struct JointLocConfig {
     /// A map set aside after a loss is merged back into the new one once the new one's
     /// alignment rests on as many fixes of its own as this many seconds hold at the search
     /// rate (0: never; the outputs then concatenate the maps). Both maps are tied to the
-    /// world, so their alignments give the similarity between them (`crate::map_merge`). 40 s, the alignment's window: from then on the window holds no
-    /// fix of the earlier map, whose placement rests on the new map's early alignment. Maps
-    /// not merged by the end of the flight are merged then, through the last alignment.
+    /// world, so their alignments give the similarity between them (`crate::map_merge`).
+    /// 40 s, the alignment's window: from then on the window holds no fix of the earlier map,
+    /// whose placement rests on the new map's early alignment. Maps not merged by the end of
+    /// the flight are merged then, through the last alignment.
     pub merge_maps_after_s: f64,
     /// While there is no world pose (tracking lost, a new map not yet geo-referenced), the
     /// search prior is the last world pose carried forward at the last ground velocity, for
