@@ -444,6 +444,7 @@ fn fuzz_fixes() {
         .map(|i| FixRow {
             timestamp: 1.0 + i as f64,
             position: [12.3456, -7.5, 3.25],
+            orientation: [0.0, 0.0, 0.0, 1.0],
             confidence: 0.4321,
             tile: 7,
             ssim: 0.61,

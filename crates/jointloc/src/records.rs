@@ -15,6 +15,8 @@ pub struct FixRecord {
     pub timestamp: f64,
     /// World (x, y) of the map point under the image centre, z the altimeter reading.
     pub position: [f64; 3],
+    /// The frame's rotation in the map as matched, radians ([`jointloc_absloc::Fix::heading`]).
+    pub heading: f64,
     pub confidence: f64,
     pub ssim: f64,
     pub match_score: f64,
@@ -38,6 +40,10 @@ impl FixRecord {
         FixRow {
             timestamp: self.timestamp,
             position: self.position,
+            orientation: {
+                let q = jointloc_absloc::localizer::nadir_orientation(self.heading);
+                [q.i, q.j, q.k, q.w]
+            },
             confidence: self.confidence,
             tile: self.tile,
             ssim: self.ssim,

@@ -681,6 +681,7 @@ impl JointLoc {
             frame: submitted.frame,
             timestamp: submitted.timestamp,
             position: fix.position,
+            heading: fix.heading,
             confidence: fix.confidence,
             ssim: fix.ssim,
             match_score: fix.match_score,

@@ -251,6 +251,7 @@ mod tests {
         let row = |timestamp, x, confidence| FixRow {
             timestamp,
             position: [x, 2.0, 3.0],
+            orientation: [0.0, 0.0, 0.0, 1.0],
             confidence,
             tile: 5,
             ssim: 0.9,

@@ -1,8 +1,10 @@
 //! `fixes.txt`: every absolute fix of a run, one line each, TUM-compatible in its first eight
 //! columns (so `evo` reads it as a trajectory of positions) and then what the fusion made of
-//! it: `timestamp x y z 0 0 0 1 confidence tile ssim match_score inliers used inlier injected`.
-//! x, y are the map point under the image centre (what a fix measures), z the map elevation
-//! there plus the altimeter reading; the flags are 0/1.
+//! it: `timestamp x y z qx qy qz qw confidence tile ssim match_score inliers used inlier
+//! injected`. x, y are the map point under the image centre (what a fix measures), z the map
+//! elevation there plus the altimeter reading; the quaternion is the camera-to-world rotation
+//! of a nadir camera at the fix's heading (the frame's rotation in the map, as matched: a fix
+//! measures no tilt); the flags are 0/1.
 
 use std::fmt::Write as _;
 use std::path::Path;
@@ -13,13 +15,15 @@ use super::{lines, number, read_text, write_text};
 use crate::error::{FormatError, Result};
 
 /// The header line written first.
-pub const HEADER: &str = "# timestamp x y z qx qy qz qw confidence tile ssim match_score inliers used inlier injected (x, y: map point under the image centre; z: map elevation there + altimeter; injected: made wrong on purpose)";
+pub const HEADER: &str = "# timestamp x y z qx qy qz qw confidence tile ssim match_score inliers used inlier injected (x, y: map point under the image centre; z: map elevation there + altimeter; q: camera-to-world of a nadir camera at the matched heading; injected: made wrong on purpose)";
 
 /// One line of `fixes.txt`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct FixRow {
     pub timestamp: f64,
     pub position: [f64; 3],
+    /// `(qx, qy, qz, qw)`: camera-to-world rotation of a nadir camera at the fix's heading.
+    pub orientation: [f64; 4],
     /// The paper's confidence w = SSIM × mean matching score.
     pub confidence: f64,
     /// Index of the map tile the fix came from.
@@ -39,11 +43,15 @@ impl FixRow {
     /// The line as written (no newline).
     pub fn to_line(&self) -> String {
         format!(
-            "{:.6} {:.4} {:.4} {:.4} 0 0 0 1 {:.4} {} {:.4} {:.4} {} {} {} {}",
+            "{:.6} {:.4} {:.4} {:.4} {:.6} {:.6} {:.6} {:.6} {:.4} {} {:.4} {:.4} {} {} {} {}",
             self.timestamp,
             self.position[0],
             self.position[1],
             self.position[2],
+            self.orientation[0],
+            self.orientation[1],
+            self.orientation[2],
+            self.orientation[3],
             self.confidence,
             self.tile,
             self.ssim,
@@ -102,9 +110,19 @@ pub fn read_fixes(path: &Path) -> Result<Vec<FixRow>> {
                 format!("{what} `{s}` is not 0 or 1"),
             )),
         };
+        let orientation = [num(4, "qx")?, num(5, "qy")?, num(6, "qz")?, num(7, "qw")?];
+        let norm = orientation.iter().map(|q| q * q).sum::<f64>().sqrt();
+        if (norm - 1.0).abs() > 1e-3 {
+            return Err(FormatError::parse(
+                path,
+                line,
+                format!("qx qy qz qw are not a unit quaternion (norm {norm})"),
+            ));
+        }
         rows.push(FixRow {
             timestamp: num(0, "timestamp")?,
             position: [num(1, "x")?, num(2, "y")?, num(3, "z")?],
+            orientation,
             confidence: num(8, "confidence")?,
             tile: count(9, "tile")?,
             ssim: num(10, "ssim")?,
@@ -126,6 +144,7 @@ mod tests {
         FixRow {
             timestamp: t,
             position: [12.3456, -7.5, 3.25],
+            orientation: [0.6, -0.8, 0.0, 0.0],
             confidence: 0.4321,
             tile: 7,
             ssim: 0.61,
@@ -147,7 +166,9 @@ mod tests {
         let text = std::fs::read_to_string(&path).unwrap();
         assert!(text.starts_with(HEADER));
         assert!(
-            text.contains("2.000000 12.3456 -7.5000 3.2500 0 0 0 1 0.4321 7 "),
+            text.contains(
+                "2.000000 12.3456 -7.5000 3.2500 0.600000 -0.800000 0.000000 0.000000 0.4321 7 "
+            ),
             "{text}"
         );
     }
@@ -167,6 +188,10 @@ mod tests {
                 ":2: x `NaN` is not finite",
             ),
             (format!("{good} 5"), ":2: expected 16 columns"),
+            (
+                good.replacen("0.600000", "0.700000", 1),
+                ":2: qx qy qz qw are not a unit quaternion",
+            ),
             (
                 good.replacen(" 1 0 1", " 2 0 1", 1),
                 ":2: used `2` is not 0 or 1",
