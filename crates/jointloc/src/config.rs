@@ -86,9 +86,17 @@ pub struct JointLocConfig {
     /// at 5 Hz) 40 s would hold two, fewer than `min_fixes`, and no pose would ever be
     /// geo-referenced.
     pub alignment_window_min_fixes: usize,
-    /// Reported z: shifted by the mean of `ground + altimeter − z` over the last this-many
-    /// seconds of tracked frames (see [`crate::altitude`]); 0: z from the alignment alone.
+    /// Reported z: shifted by `ground + altimeter − z` over the last this-many seconds of
+    /// tracked frames (see [`crate::altitude`]), their mean or, with
+    /// `altitude_tilt_sigma_deg`, a plane through them; 0: z from the alignment alone.
+    /// 15 s with the plane (5 s as a mean before it; 10–20 s within 0.1 mm online,
+    /// `docs/jointloc.md` §"z online: a plane through the altimeter's heights").
     pub altitude_window_s: f64,
+    /// With this prior σ of the alignment's tilt, degrees, the altimeter aid fits a plane to
+    /// the window's height residuals instead of their mean, and the tilt it reveals no longer
+    /// makes a longer window lag (see [`crate::altitude::AltitudeFilter::z_offset`]); 0: the
+    /// plain mean. 0.2°: the online attitude's error is about that.
+    pub altitude_tilt_sigma_deg: f64,
     /// The same aid for the outputs written at the end (`trajectory-final.tum`): the mean
     /// over this many seconds centred on each pose, from the final poses (scaled with the
     /// altitude and the elevation model's σ as `altitude_window_s`); 0: off. Centred on final
@@ -202,7 +210,8 @@ impl Default for JointLocConfig {
             reference_altitude_m: 10.0,
             alignment_window_s: 40.0,
             alignment_window_min_fixes: 10,
-            altitude_window_s: 5.0,
+            altitude_window_s: 15.0,
+            altitude_tilt_sigma_deg: 0.2,
             final_altitude_window_s: 30.0,
             start_position: None,
             sweep_after_failures: 2,
@@ -315,6 +324,12 @@ impl JointLocConfig {
             (
                 "altitude_window_s",
                 self.altitude_window_s,
+                true,
+                "must be finite and >= 0",
+            ),
+            (
+                "altitude_tilt_sigma_deg",
+                self.altitude_tilt_sigma_deg,
                 true,
                 "must be finite and >= 0",
             ),
