@@ -19,11 +19,19 @@ use nalgebra::Point3;
 /// a laser altimeter's at short range).
 const ALTIMETER_SIGMA_M: f64 = 0.1;
 
+/// The plane is fitted only while the window's scale is at most this (near the reference
+/// altitude, over an elevation model of the reference precision). At 100 m (σ 0.5 m readings,
+/// a 47 s plane) and at 10 m over a 25 cm map's 1 m DTM (σ 0.25 m, 37 s) it made z worse
+/// than the mean (`docs/jointloc.md` §"z online: a plane through the altimeter's heights").
+const PLANE_MAX_SCALE: f64 = 1.25;
+
 /// The recent frames' SLAM camera centres and altimeter readings.
 #[derive(Debug, Clone)]
 pub struct AltitudeFilter {
     base_window_s: f64,
-    /// Prior σ of the alignment's tilt, radians (0: the plain mean, no tilt estimated).
+    /// The plane's window, seconds, and the prior σ of its slopes, radians (either 0: the
+    /// plain mean, no tilt estimated).
+    plane_window_s: f64,
     tilt_sigma_rad: f64,
     /// Factor on every window: longer at altitude and over a coarse elevation model.
     scale: f64,
@@ -36,6 +44,7 @@ impl AltitudeFilter {
     pub fn new(window_s: f64, ground: Ground) -> Self {
         Self {
             base_window_s: window_s,
+            plane_window_s: 0.0,
             tilt_sigma_rad: 0.0,
             scale: 1.0,
             ground,
@@ -43,11 +52,18 @@ impl AltitudeFilter {
         }
     }
 
-    /// Estimates, beside the z shift, the tilt of the alignment that the window's heights
-    /// reveal, with a prior σ of `sigma_rad` (0: off). See [`Self::z_offset`].
-    pub fn with_tilt(mut self, sigma_rad: f64) -> Self {
+    /// Near the reference altitude, estimates over `window_s` seconds, beside the z shift,
+    /// the tilt of the alignment that the heights reveal, with a prior σ of `sigma_rad`
+    /// (either 0: off). See [`Self::z_offset`].
+    pub fn with_plane(mut self, window_s: f64, sigma_rad: f64) -> Self {
+        self.plane_window_s = window_s;
         self.tilt_sigma_rad = sigma_rad;
         self
+    }
+
+    /// Whether the plane is fitted now (see [`PLANE_MAX_SCALE`]).
+    fn plane(&self) -> bool {
+        self.plane_window_s > 0.0 && self.tilt_sigma_rad > 0.0 && self.scale <= PLANE_MAX_SCALE
     }
 
     /// The elevation model the heights are taken above.
@@ -57,7 +73,13 @@ impl AltitudeFilter {
 
     /// Seconds of frames the estimate averages over (0: off).
     pub fn window_s(&self) -> f64 {
-        self.scaled(self.base_window_s)
+        if self.base_window_s <= 0.0 {
+            0.0
+        } else if self.plane() {
+            self.scaled(self.plane_window_s)
+        } else {
+            self.scaled(self.base_window_s)
+        }
     }
 
     /// Scales the window by `scale` (the readings already held are kept; the next push trims
@@ -95,7 +117,7 @@ impl AltitudeFilter {
     /// The z shift of the world poses under `slam_to_world`: mean of
     /// `ground(x, y) + altitude − z` over the recorded frames; `None` with none recorded.
     ///
-    /// With a tilt prior ([`Self::with_tilt`]) the shift is the intercept, at the newest
+    /// With a plane ([`Self::with_plane`]) the shift is the intercept, at the newest
     /// frame's x, y, of a plane fitted to those residuals over the frames' x, y (a ridge
     /// regression: the slopes' prior σ against the altimeter's 0.1 m). A tilt of the
     /// alignment makes the residual grow along the track, and a trailing mean then lags by
@@ -119,7 +141,7 @@ impl AltitudeFilter {
             .collect();
         let n = rows.len() as f64;
         let mean = rows.iter().map(|r| r.2).sum::<f64>() / n;
-        if self.tilt_sigma_rad <= 0.0 {
+        if !self.plane() {
             return Some(mean);
         }
         // Normal equations of r = c + gx·dx + gy·dy, ridge λ on (gx, gy).
@@ -231,7 +253,7 @@ mod tests {
             let mut rng = ChaCha8Rng::seed_from_u64(seed);
             let mut mean = AltitudeFilter::new(30.0, Ground::default());
             let mut plane =
-                AltitudeFilter::new(30.0, Ground::default()).with_tilt(0.2f64.to_radians());
+                AltitudeFilter::new(30.0, Ground::default()).with_plane(30.0, 0.2f64.to_radians());
             let mut truth = 0.0;
             for i in 0..400 {
                 let t = i as f64 * 0.2;
@@ -253,6 +275,34 @@ mod tests {
             err_plane < 0.4 * err_mean,
             "plane {err_plane}, mean {err_mean}"
         );
+    }
+
+    /// Up high (the window scaled by more than 1.25) the plane gives way to the mean, over
+    /// the mean's own window.
+    #[test]
+    fn up_high_the_mean_replaces_the_plane() {
+        let mut mean = AltitudeFilter::new(5.0, Ground::default());
+        let mut plane = AltitudeFilter::new(5.0, Ground::default()).with_plane(15.0, 0.0035);
+        for f in [&mut mean, &mut plane] {
+            f.set_scale(2.0);
+        }
+        assert_eq!(plane.window_s(), 10.0);
+        for i in 0..200 {
+            let t = i as f64 * 0.2;
+            for f in [&mut mean, &mut plane] {
+                f.push(
+                    t,
+                    Point3::new(t, 0.0, 100.0 - 0.01 * t),
+                    100.0 + (i % 7) as f64 * 0.1,
+                );
+            }
+        }
+        let s = Sim3::identity();
+        assert_eq!(plane.z_offset(&s), mean.z_offset(&s));
+        plane.set_scale(1.0);
+        assert_eq!(plane.window_s(), 15.0);
+        mean.set_scale(1.0);
+        assert_eq!(mean.window_s(), 5.0);
     }
 
     /// A climbing flight whose z is 0.3 m low: the centred mean over the frames removes the

@@ -86,16 +86,20 @@ pub struct JointLocConfig {
     /// at 5 Hz) 40 s would hold two, fewer than `min_fixes`, and no pose would ever be
     /// geo-referenced.
     pub alignment_window_min_fixes: usize,
-    /// Reported z: shifted by `ground + altimeter − z` over the last this-many seconds of
-    /// tracked frames (see [`crate::altitude`]), their mean or, with
-    /// `altitude_tilt_sigma_deg`, a plane through them; 0: z from the alignment alone.
-    /// 15 s with the plane (5 s as a mean before it; 10–20 s within 0.1 mm online,
-    /// `docs/jointloc.md` §"z online: a plane through the altimeter's heights").
+    /// Reported z: shifted by the mean of `ground + altimeter − z` over the last this-many
+    /// seconds of tracked frames (see [`crate::altitude`]); 0: z from the alignment alone.
     pub altitude_window_s: f64,
-    /// With this prior σ of the alignment's tilt, degrees, the altimeter aid fits a plane to
-    /// the window's height residuals instead of their mean, and the tilt it reveals no longer
-    /// makes a longer window lag (see [`crate::altitude::AltitudeFilter::z_offset`]); 0: the
-    /// plain mean. 0.2°: the online attitude's error is about that.
+    /// Near the reference altitude over a fine elevation model (the aid's window scaled by at
+    /// most 1.25), the aid instead fits a plane to those residuals over the last this-many
+    /// seconds and takes it at the newest frame: the alignment's tilt makes them grow along
+    /// the track, and the plane follows what a longer mean would lag (see
+    /// [`crate::altitude::AltitudeFilter::z_offset`]); 0: the mean everywhere. 15 s: 10–20 s
+    /// within 0.1 mm online (`docs/jointloc.md` §"z online: a plane through the altimeter's
+    /// heights").
+    pub altitude_plane_window_s: f64,
+    /// Prior σ of the plane's slopes (the alignment's tilt), degrees: across a straight track
+    /// the slope is not observed and the prior keeps it level. 0.2°: the online attitude's
+    /// error is about that. 0: no plane.
     pub altitude_tilt_sigma_deg: f64,
     /// The same aid for the outputs written at the end (`trajectory-final.tum`): the mean
     /// over this many seconds centred on each pose, from the final poses (scaled with the
@@ -210,7 +214,8 @@ impl Default for JointLocConfig {
             reference_altitude_m: 10.0,
             alignment_window_s: 40.0,
             alignment_window_min_fixes: 10,
-            altitude_window_s: 15.0,
+            altitude_window_s: 5.0,
+            altitude_plane_window_s: 15.0,
             altitude_tilt_sigma_deg: 0.2,
             final_altitude_window_s: 30.0,
             start_position: None,
@@ -324,6 +329,12 @@ impl JointLocConfig {
             (
                 "altitude_window_s",
                 self.altitude_window_s,
+                true,
+                "must be finite and >= 0",
+            ),
+            (
+                "altitude_plane_window_s",
+                self.altitude_plane_window_s,
                 true,
                 "must be finite and >= 0",
             ),

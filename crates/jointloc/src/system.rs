@@ -184,8 +184,10 @@ impl JointLoc {
             Mode::Sequential => Absolute::Inline(source),
             Mode::Threaded => Absolute::Thread(AbsoluteWorker::spawn(source)?),
         };
-        let altitude = AltitudeFilter::new(config.altitude_window_s, ground)
-            .with_tilt(config.altitude_tilt_sigma_deg.to_radians());
+        let altitude = AltitudeFilter::new(config.altitude_window_s, ground).with_plane(
+            config.altitude_plane_window_s,
+            config.altitude_tilt_sigma_deg.to_radians(),
+        );
         let altimeter_gate = AltimeterGate::new(config.max_altitude_rate_mps);
         Ok(Self {
             config,
