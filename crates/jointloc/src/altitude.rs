@@ -3,11 +3,11 @@
 //! The fixes give z only every k-th frame (DEM + altimeter at that frame, σ ≈ 0.1 m), so the
 //! similarity's z translation carries the noise of the last few fixes. The altimeter, though,
 //! measures every frame, and the SLAM's relative z is smooth: the reported z is shifted by
-//! `ground(x, y) + altimeter − z` under the current alignment over the last `window_s` seconds
-//! of tracked frames, their mean or, with a tilt prior, a plane through them taken at the
-//! newest frame (the alignment's tilt makes the residual grow along the track). This averages
-//! the altimeter over 75 frames (15 s at 5 Hz) instead of ~2 fixes, and only moves z: x, y and
-//! the attitude stay as the alignment gives them.
+//! `ground(x, y) + altimeter − z` under the current alignment over the recent tracked frames:
+//! near the reference altitude a plane through the last 15 s of them, taken at the newest
+//! frame (the alignment's tilt makes the residual grow along the track), elsewhere their mean
+//! over a shorter window. This uses 75 readings (15 s at 5 Hz) instead of ~3 fixes, and only
+//! moves z: x, y and the attitude stay as the alignment gives them.
 
 use std::collections::VecDeque;
 
@@ -71,7 +71,7 @@ impl AltitudeFilter {
         &self.ground
     }
 
-    /// Seconds of frames the estimate averages over (0: off).
+    /// Seconds of frames the estimate uses now, the plane's or the mean's (0: off).
     pub fn window_s(&self) -> f64 {
         if self.base_window_s <= 0.0 {
             0.0
@@ -117,7 +117,7 @@ impl AltitudeFilter {
     /// The z shift of the world poses under `slam_to_world`: mean of
     /// `ground(x, y) + altitude − z` over the recorded frames; `None` with none recorded.
     ///
-    /// With a plane ([`Self::with_plane`]) the shift is the intercept, at the newest
+    /// With a plane ([`Self::with_plane`]) near the reference altitude the shift is the intercept, at the newest
     /// frame's x, y, of a plane fitted to those residuals over the frames' x, y (a ridge
     /// regression: the slopes' prior σ against the altimeter's 0.1 m). A tilt of the
     /// alignment makes the residual grow along the track, and a trailing mean then lags by
