@@ -127,32 +127,23 @@ impl AltitudeFilter {
     pub fn z_offset(&self, slam_to_world: &Sim3) -> Option<f64> {
         let (_, newest, _) = self.recent.back()?;
         let newest = slam_to_world.transform_point(newest);
-        let rows: Vec<(f64, f64, f64)> = self
-            .recent
-            .iter()
-            .map(|(_, c, altitude)| {
-                let p = slam_to_world.transform_point(c);
-                (
-                    p.x - newest.x,
-                    p.y - newest.y,
-                    self.ground.height_at(p.x, p.y) + altitude - p.z,
-                )
-            })
-            .collect();
-        let n = rows.len() as f64;
-        let mean = rows.iter().map(|r| r.2).sum::<f64>() / n;
-        if !self.plane() {
-            return Some(mean);
-        }
-        // Normal equations of r = c + gx·dx + gy·dy, ridge λ on (gx, gy).
-        let ridge = (ALTIMETER_SIGMA_M / self.tilt_sigma_rad).powi(2);
+        // Normal equations of r = c + gx·dx + gy·dy, summed in one pass: their first row
+        // also gives the mean (Σr / n).
         let mut a = nalgebra::Matrix3::<f64>::zeros();
         let mut b = nalgebra::Vector3::<f64>::zeros();
-        for &(dx, dy, r) in &rows {
-            let v = nalgebra::Vector3::new(1.0, dx, dy);
+        for (_, c, altitude) in &self.recent {
+            let p = slam_to_world.transform_point(c);
+            let r = self.ground.height_at(p.x, p.y) + altitude - p.z;
+            let v = nalgebra::Vector3::new(1.0, p.x - newest.x, p.y - newest.y);
             a += v * v.transpose();
             b += v * r;
         }
+        let mean = b[0] / a[(0, 0)];
+        if !self.plane() {
+            return Some(mean);
+        }
+        // Ridge λ on (gx, gy).
+        let ridge = (ALTIMETER_SIGMA_M / self.tilt_sigma_rad).powi(2);
         a[(1, 1)] += ridge;
         a[(2, 2)] += ridge;
         let Some(x) = a.cholesky().map(|c| c.solve(&b)) else {
