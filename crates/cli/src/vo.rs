@@ -63,12 +63,6 @@ pub struct Args {
     /// it was without it, for comparison.
     #[arg(long)]
     no_loop_closing: bool,
-    /// Skip the global BA over the whole map after the last frame (ORB-SLAM2 has none): the
-    /// trajectory as loop closing and the local BAs left it. With it (the default) the
-    /// keyframes made since the last loop are adjusted with the whole map, and every frame
-    /// follows its keyframe (`--online` poses excepted); docs/vo.md §"A global BA at the end".
-    #[arg(long)]
-    no_final_ba: bool,
     /// Replace existing outputs (`--out`, `--keyframes`, `--map-points`).
     #[arg(long)]
     force: bool,
@@ -167,15 +161,6 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         .context("the global BA on its thread")?;
     let wall = start.elapsed().as_secs_f64();
     let cpu_s = cpu_ms(start_cpu, thread_cpu_ns()).map(|ms| ms * 1e-3);
-    let final_ba = if args.no_final_ba {
-        None
-    } else {
-        let t0 = Instant::now();
-        system
-            .global_bundle_adjustment()
-            .context("the global BA after the last frame")?
-            .map(|stats| (stats, t0.elapsed().as_secs_f64() * 1e3))
-    };
     let trajectory = if args.online {
         jointloc_geometry::trajectory::Trajectory::new(online_t, online_p)?
     } else {
@@ -224,14 +209,6 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             .collect::<Vec<_>>()
             .join(",")
     );
-    match final_ba {
-        Some((b, ms)) => println!(
-            "global BA at the end: {} keyframes, {} points, {} outlier observations removed, {ms:.0} ms",
-            b.keyframes, b.points, b.outliers_removed
-        ),
-        None if args.no_final_ba => println!("global BA at the end: off (--no-final-ba)"),
-        None => println!("global BA at the end: none (fewer than 3 keyframes)"),
-    }
     println!(
         "map: {} keyframes ({} retired by the cap), {} points",
         system.map().n_keyframes(),

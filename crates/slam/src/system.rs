@@ -17,7 +17,6 @@ use crate::cpu_time::{cpu_ms, thread_cpu_ns};
 use crate::error::{Result, SlamError};
 use crate::frame::{DEFAULT_MAX_OFF_AXIS_DEG, Frame, Undistorter, image_entropy};
 use crate::local_mapping::{GroundModel, LocalMapper, LocalMappingConfig};
-use crate::loop_closing::global_ba::{GlobalBaStats, global_bundle_adjustment};
 use crate::loop_closing::{LoopCloser, LoopClosingConfig, LoopClosure};
 use crate::map::{GlobalFix, KeyFrameId, Map, RetiredKeyFrame};
 use crate::tracking::{Tracker, TrackingConfig, TrackingState};
@@ -522,31 +521,6 @@ impl System {
     /// [`LoopClosingConfig::global_ba_thread`](crate::loop_closing::LoopClosingConfig).
     pub fn finish_background_work(&mut self) -> Result<()> {
         self.apply_background(true)
-    }
-
-    /// One global BA over the whole map now, as loop closing runs after a loop (every
-    /// keyframe and point, the first keyframe fixed, the absolute fixes as global factors
-    /// when geo-referenced), and the tracker's last frame moved with its reference keyframe.
-    /// `jointloc vo` calls it once after the last frame (after
-    /// [`Self::finish_background_work`]): the keyframes made since the last loop have only
-    /// been through local BAs, and the trajectory's frames follow their keyframes
-    /// (`docs/vo.md` §"A global BA at the end"). `None` with fewer than three keyframes.
-    pub fn global_bundle_adjustment(&mut self) -> Result<Option<GlobalBaStats>> {
-        if self.map.n_keyframes() < 3 {
-            return Ok(None);
-        }
-        let reference = self.tracker.reference_keyframe();
-        let before = reference.and_then(|r| self.map.keyframe(r)).map(|k| k.pose);
-        let stats = global_bundle_adjustment(
-            &mut self.map,
-            &self.undistorter.ideal,
-            &self.mapper.config.ba,
-            self.slam_to_world.as_ref(),
-        )?;
-        if let (Some(r), Some(b)) = (reference, before) {
-            self.tracker.keyframes_moved(&self.map, &b, r);
-        }
-        Ok(Some(stats))
     }
 
     /// The frame's pose relative to its reference keyframe as that keyframe is now.
