@@ -300,6 +300,7 @@ impl JointLoc {
                 .map_or(0.0, |t| self.fixes[t.record].timestamp);
             self.terrain.update(&estimate, config, at);
             tracing::debug!(
+                at,
                 shift = ?estimate.shift.as_slice(),
                 points = estimate.points,
                 offset = ?self.terrain.offset.as_slice(),
