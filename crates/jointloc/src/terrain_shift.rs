@@ -32,9 +32,10 @@ pub struct TerrainConfig {
     /// Share of the estimates taken into the correction per second of flight (0: off): an
     /// estimate `dt` seconds after the one before is taken in by `1 − (1 − gain)^dt`, so the
     /// correction's time constant does not depend on how often fixes come. The map points
-    /// are also held on the model by the local BA's ground factors, which take up part of a
-    /// shift before it is measured, so one estimate sees only about a third of the bias; the
-    /// correction converges over successive fixes. 0.08 per second (a time constant of 12 s),
+    /// are also held on the model by the local BA's ground factors, which take up most of a
+    /// shift before it is measured: one estimate sees a third of the bias (2026-12-02) to an
+    /// eighth (four medium flights, 2026-12-07; `docs/jointloc.md` §"What one estimate
+    /// sees"); the correction converges over successive fixes. 0.08 per second (a time constant of 12 s),
     /// half the pace of the 0.3 per fix every 2 s tuned at a fix every 10th frame
     /// (`docs/jointloc.md` §"Terrain correction"): over gravel, where the fixes share little
     /// bias, a faster correction follows noise (§"The windows in seconds of flight",
