@@ -117,13 +117,13 @@ impl AltitudeFilter {
     /// The z shift of the world poses under `slam_to_world`: mean of
     /// `ground(x, y) + altitude − z` over the recorded frames; `None` with none recorded.
     ///
-    /// With a plane ([`Self::with_plane`]) near the reference altitude the shift is the intercept, at the newest
-    /// frame's x, y, of a plane fitted to those residuals over the frames' x, y (a ridge
-    /// regression: the slopes' prior σ against the altimeter's 0.1 m). A tilt of the
-    /// alignment makes the residual grow along the track, and a trailing mean then lags by
-    /// the tilt × half the window's length; the plane follows it, so the window can be longer
-    /// and average more readings. Across a straight track the slope is unobserved and the
-    /// prior keeps it level.
+    /// With a plane ([`Self::with_plane`]) near the reference altitude the shift is the
+    /// intercept, at the newest frame's x, y, of a plane fitted to those residuals over the
+    /// frames' x, y (a ridge regression: the slopes' prior σ against the altimeter's 0.1 m).
+    /// A tilt of the alignment makes the residual grow along the track, and a trailing mean
+    /// then lags by the tilt × half the window's length; the plane follows it, so the window
+    /// can be longer and average more readings. Across a straight track the slope is
+    /// unobserved and the prior keeps it level.
     pub fn z_offset(&self, slam_to_world: &Sim3) -> Option<f64> {
         let (_, newest, _) = self.recent.back()?;
         let newest = slam_to_world.transform_point(newest);

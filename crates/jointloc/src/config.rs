@@ -87,7 +87,8 @@ pub struct JointLocConfig {
     /// geo-referenced.
     pub alignment_window_min_fixes: usize,
     /// Reported z: shifted by the mean of `ground + altimeter − z` over the last this-many
-    /// seconds of tracked frames (see [`crate::altitude`]); 0: z from the alignment alone.
+    /// seconds of tracked frames (see [`crate::altitude`]), where the plane below is not
+    /// fitted; 0: z from the alignment alone.
     pub altitude_window_s: f64,
     /// Near the reference altitude over a fine elevation model (the aid's window scaled by at
     /// most 1.25), the aid instead fits a plane to those residuals over the last this-many

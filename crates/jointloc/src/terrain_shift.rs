@@ -35,11 +35,11 @@ pub struct TerrainConfig {
     /// are also held on the model by the local BA's ground factors, which take up most of a
     /// shift before it is measured: one estimate sees a third of the bias (2026-12-02) to an
     /// eighth (four medium flights, 2026-12-07; `docs/jointloc.md` §"What one estimate
-    /// sees"); the correction converges over successive fixes. 0.08 per second (a time constant of 12 s),
-    /// half the pace of the 0.3 per fix every 2 s tuned at a fix every 10th frame
-    /// (`docs/jointloc.md` §"Terrain correction"): over gravel, where the fixes share little
-    /// bias, a faster correction follows noise (§"The windows in seconds of flight",
-    /// §"A robust alignment and a slower terrain correction").
+    /// sees"); the correction converges over successive fixes. 0.08 per second (a time
+    /// constant of 12 s), half the pace of the 0.3 per fix every 2 s tuned at a fix every
+    /// 10th frame (`docs/jointloc.md` §"Terrain correction"): over gravel, where the fixes
+    /// share little bias, a faster correction follows noise (§"The windows in seconds of
+    /// flight", §"A robust alignment and a slower terrain correction").
     pub gain: f64,
     /// A camera whose horizontal field of view is wider than this many degrees gets no
     /// correction (gain 0). Over a footprint several times the altitude wide, a tilt of the
