@@ -32,7 +32,7 @@ pub struct Args {
     #[arg(long, value_name = "M")]
     matcher: Option<String>,
     /// Absolute localisation on every K-th frame (default 5; the paper's fusion frequency is
-    /// 10). The windows stay in seconds of flight (the alignment's `alignment_window_s`, 40):
+    /// 10). The windows stay in seconds of flight (the alignment's `alignment_window_s`, 30):
     /// K changes how many fixes they hold.
     #[arg(long, value_name = "K")]
     fusion_every: Option<usize>,

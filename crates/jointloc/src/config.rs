@@ -18,7 +18,7 @@ pub struct JointLocConfig {
     /// detector + matcher pair whose fixes the fusion uses.
     pub matcher: String,
     /// Every k-th frame goes to absolute localisation. The paper's fusion frequency is 10;
-    /// 5 (a fix a second at 5 Hz; the alignment's window, 40 s, then holds 40) measured
+    /// 5 (a fix a second at 5 Hz; the alignment's window, then 40 s, held 40) measured
     /// 0.073 → 0.063 m online and 0.047 → 0.044 m at the end on 18 held-out flights, at one
     /// predicted-window search (60–80 ms) more per 10 frames (`docs/jointloc.md` §"A fix
     /// every 5th frame").
@@ -77,13 +77,14 @@ pub struct JointLocConfig {
     /// fails; failed searches make the window reach further back (0: all fixes). SLAM drift
     /// (scale, yaw) makes one similarity for the whole flight a compromise that is worst at
     /// the current frame, the one being reported; too few fixes leave the fixes' noise in it.
-    /// 40 s (40 m at 1 m/s; 40 fixes at a fix every 5th frame of 5 Hz): the span measured
-    /// best of 10 / 20 / 30 fixes every 10th frame on four development flights
-    /// (`docs/jointloc.md` §"Choosing the defaults"). In seconds, so that `fusion_every`
-    /// changes how many fixes the window holds and not how far back it reaches.
+    /// 30 s (30 m at 1 m/s; 30 fixes at a fix every 5th frame of 5 Hz): better online than
+    /// 40 s on four sets of 18 fresh flights, at the end on three (`docs/jointloc.md`
+    /// §"The alignment's window at a fix a second"); 40 s was 20 fixes every 10th frame,
+    /// the best of 10 / 20 / 30 then. In seconds, so that `fusion_every` changes how many
+    /// fixes the window holds and not how far back it reaches.
     pub alignment_window_s: f64,
     /// The window always holds at least this many fixes: with a fix every 100th frame (20 s
-    /// at 5 Hz) 40 s would hold two, fewer than `min_fixes`, and no pose would ever be
+    /// at 5 Hz) 30 s would hold one, fewer than `min_fixes`, and no pose would ever be
     /// geo-referenced.
     pub alignment_window_min_fixes: usize,
     /// Reported z: shifted by the mean of `ground + altimeter − z` over the last this-many
@@ -134,9 +135,9 @@ pub struct JointLocConfig {
     /// alignment rests on as many fixes of its own as this many seconds hold at the search
     /// rate (0: never; the outputs then concatenate the maps). Both maps are tied to the
     /// world, so their alignments give the similarity between them (`crate::map_merge`).
-    /// 40 s, the alignment's window: from then on the window holds no fix of the earlier map,
-    /// whose placement rests on the new map's early alignment. Maps not merged by the end of
-    /// the flight are merged then, through the last alignment.
+    /// 40 s, longer than the alignment's window (30 s): from then on the window holds no fix
+    /// of the earlier map, whose placement rests on the new map's early alignment. Maps not
+    /// merged by the end of the flight are merged then, through the last alignment.
     pub merge_maps_after_s: f64,
     /// While there is no world pose (tracking lost, a new map not yet geo-referenced), the
     /// search prior is the last world pose carried forward at the last ground velocity, for
@@ -213,7 +214,7 @@ impl Default for JointLocConfig {
             estimate_camera_tilt: true,
             camera_tilt_min_deg: 0.5,
             reference_altitude_m: 10.0,
-            alignment_window_s: 40.0,
+            alignment_window_s: 30.0,
             alignment_window_min_fixes: 10,
             altitude_window_s: 5.0,
             altitude_plane_window_s: 15.0,
