@@ -125,6 +125,15 @@ pub struct JointLocConfig {
     /// search radius matched 392 tiles, 35 s, on a medium mountain map). In seconds, so that
     /// `fusion_every` does not change how often a failing flight sweeps.
     pub sweep_after_failing_s: f64,
+    /// Sequential mode, before the first fix (no fix, no alignment, no world pose yet): after
+    /// n searches failed in a row, the next is made once 2^(n−1) search intervals have passed
+    /// since the last, at most this many seconds of flight (0: at every due frame). Each
+    /// covers the whole map (or, with `start_position`, falls back to it), seconds of work
+    /// even on a 60 m medium map, where a mountain flight failed 22 in a row and ran at
+    /// 4.6 Hz. 5 s: about what one such search takes at the camera rate, where the threaded
+    /// mode could not search more often either; 8 s delayed the first world pose by up to
+    /// 9 s (`docs/jointloc.md` §"Searches before the first fix back off").
+    pub blind_retry_max_s: f64,
     /// After this many seconds of lost tracking without a relocalisation, the SLAM map is set
     /// aside and a new one initialised, geo-referenced again by the next `min_fixes` fixes
     /// (0: wait for relocalisation for ever, as ORB-SLAM2). A UAV keeps flying over ground its
@@ -223,6 +232,7 @@ impl Default for JointLocConfig {
             start_position: None,
             sweep_after_failures: 2,
             sweep_after_failing_s: 20.0,
+            blind_retry_max_s: 5.0,
             new_map_after_lost_s: 5.0,
             merge_maps_after_s: 40.0,
             dead_reckoning_max_s: 20.0,
@@ -363,6 +373,12 @@ impl JointLocConfig {
                 self.sweep_after_failing_s,
                 true,
                 "must be finite and >= 0 (0: never a heading)",
+            ),
+            (
+                "blind_retry_max_s",
+                self.blind_retry_max_s,
+                true,
+                "must be finite and >= 0 (0: no backoff)",
             ),
             (
                 "terrain.window_s",
@@ -524,7 +540,7 @@ mod tests {
     #[test]
     fn invalid_terrain_and_recovery_settings_are_rejected_with_their_field() {
         type Set = fn(&mut JointLocConfig);
-        let cases: [(Set, &str); 15] = [
+        let cases: [(Set, &str); 16] = [
             (|c| c.max_altitude_rate_mps = 0.0, "max_altitude_rate_mps"),
             (
                 |c| c.max_altitude_rate_mps = f64::NAN,
@@ -547,6 +563,7 @@ mod tests {
                 "alignment_window_min_fixes",
             ),
             (|c| c.sweep_after_failing_s = -1.0, "sweep_after_failing_s"),
+            (|c| c.blind_retry_max_s = f64::NAN, "blind_retry_max_s"),
             (
                 |c| c.merge_maps_after_s = f64::INFINITY,
                 "merge_maps_after_s",

@@ -61,9 +61,59 @@ pub(crate) fn sweep_due(streak: Option<(f64, f64)>, now: f64, every_s: f64) -> b
     periods(now) > periods(latest)
 }
 
+/// Whether a search with nothing to search around yet (no fix, no alignment, no world pose)
+/// waits at frame time `now`: after `failures` such searches failed in a row, the latest at
+/// `latest`, the next is made once `interval_s × 2^(failures − 1)` has passed, at most
+/// `max_s` (0: never waits). Each covers the whole map (seconds, on a map of 60 m) and the
+/// ground that made it fail is still under the camera for the next few.
+pub(crate) fn blind_search_waits(
+    failures: usize,
+    latest: f64,
+    now: f64,
+    interval_s: f64,
+    max_s: f64,
+) -> bool {
+    if failures == 0 || max_s <= 0.0 || interval_s.is_nan() || interval_s <= 0.0 {
+        return false;
+    }
+    let doublings = (failures - 1).min(30) as i32;
+    let wait = (interval_s * 2f64.powi(doublings)).min(max_s);
+    now - latest + SAME_INSTANT_S < wait
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn blind_searches_back_off_by_doubling_up_to_the_cap() {
+        // A search a second; the times at which a streak of failures searches.
+        let searches = |max_s: f64| {
+            let (mut failures, mut latest, mut made) = (0, 0.0, Vec::new());
+            for k in 0..40 {
+                let now = k as f64 * 0.2 * 5.0;
+                if !blind_search_waits(failures, latest, now, 1.0, max_s) {
+                    made.push(now);
+                    failures += 1;
+                    latest = now;
+                }
+            }
+            made.iter()
+                .map(|t: &f64| t.round() as i64)
+                .collect::<Vec<_>>()
+        };
+        assert_eq!(searches(8.0), [0, 1, 3, 7, 15, 23, 31, 39]);
+        assert_eq!(searches(5.0), [0, 1, 3, 7, 12, 17, 22, 27, 32, 37]);
+        assert_eq!(searches(0.0).len(), 40, "0: no backoff");
+        assert_eq!(
+            searches(1.0).len(),
+            40,
+            "capped at the interval: no backoff"
+        );
+        // No failure yet, or no interval known yet: search.
+        assert!(!blind_search_waits(0, 0.0, 0.0, 1.0, 8.0));
+        assert!(!blind_search_waits(3, 0.0, 0.5, f64::NAN, 8.0));
+    }
 
     #[test]
     fn the_clock_gives_the_frame_period() {

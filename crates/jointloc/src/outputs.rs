@@ -170,6 +170,7 @@ impl JointLoc {
             skipped_untracked: timing.skipped_untracked,
             virtual_frames: timing.virtual_frames,
             skipped_no_view: timing.skipped_no_view,
+            skipped_backoff: timing.skipped_backoff,
             fixes_injected_wrong: fixes.iter().filter(|f| f.injected).count(),
             first_fix_global: fixes.first().map(|f| f.global),
             first_fix_searched_tiles: fixes.first().map(|f| f.searched_tiles),

@@ -93,4 +93,7 @@ pub struct FusionTiming {
     pub virtual_frames: usize,
     /// Frames due whose virtual frame could not be made (too little covered, not tracked).
     pub skipped_no_view: usize,
+    /// Frames due while searches with nothing to search around back off (sequential mode,
+    /// before the first fix; [`crate::JointLocConfig::blind_retry_max_s`]).
+    pub skipped_backoff: usize,
 }

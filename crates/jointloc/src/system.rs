@@ -369,6 +369,10 @@ impl JointLoc {
         if index.is_multiple_of(self.config.fusion_every)
             && let Some(alt) = altitude
         {
+            if self.blind_search_waits(timestamp) {
+                self.timing.skipped_backoff += 1;
+                return self.finish_frame(index, timestamp, altitude, r, absolute, start);
+            }
             // A frame too small on the map is searched through a virtual frame: rendered here
             // in the sequential mode, on the thread in the threaded one (only when it is idle).
             // `Err`: none could be made (not tracked, too few frames kept, too little covered).
@@ -790,6 +794,29 @@ impl JointLoc {
         self.alignment.is_none()
             && self.last_world_pose.is_none()
             && self.config.start_position.is_none()
+    }
+
+    /// Sequential mode, before the first fix: whether the due search waits, backing off
+    /// after failures (see [`JointLocConfig::blind_retry_max_s`]). Threaded, a search that
+    /// outlasts the interval already skips the frames due meanwhile.
+    fn blind_search_waits(&self, timestamp: f64) -> bool {
+        let blind = self.alignment.is_none()
+            && self.provisional.is_none()
+            && self.last_world_pose.is_none();
+        let (Absolute::Inline(_), true, Some((_, latest))) =
+            (&self.absolute, blind, self.failing_since)
+        else {
+            return false;
+        };
+        let interval =
+            self.clock.frame_period_s().unwrap_or(f64::NAN) * self.config.fusion_every as f64;
+        crate::flight_time::blind_search_waits(
+            self.failures_in_a_row,
+            latest,
+            timestamp,
+            interval,
+            self.config.blind_retry_max_s,
+        )
     }
 
     /// The search prior from the fused pose: position and heading of the last world pose;

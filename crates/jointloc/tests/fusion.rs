@@ -575,3 +575,71 @@ fn a_camera_tilted_off_nadir_is_placed_where_it_looks_from() {
         "online: {tilt_online:.3} m with the tilt, {nadir_online:.3} m assuming nadir"
     );
 }
+
+/// Fails every search until `until_s` of flight, then gives fixes from the truth; records
+/// the frame times it was asked at.
+#[derive(Debug)]
+struct FailsUntil {
+    truth: TruthFixes,
+    until_s: f64,
+    asked: Arc<Mutex<Vec<f64>>>,
+}
+
+impl jointloc_system::FixSource for FailsUntil {
+    fn localize(
+        &mut self,
+        request: &jointloc_system::FixRequest<'_>,
+    ) -> Result<Option<jointloc_system::Located>, jointloc_absloc::AbslocError> {
+        self.asked.lock().unwrap().push(request.timestamp);
+        if request.timestamp < self.until_s {
+            return Ok(Some(jointloc_system::Located {
+                outcome: no_match(),
+                injected: false,
+            }));
+        }
+        self.truth.localize(request)
+    }
+}
+
+/// Before the first fix a sequential run backs off after failed searches (each would search
+/// the whole map): searches 1, 2, 4, 8 s apart (the cap 8 s here), then one a second again.
+#[test]
+fn searches_before_the_first_fix_back_off_after_failures() {
+    let run_with = |max_s: f64| {
+        let config = JointLocConfig {
+            blind_retry_max_s: max_s,
+            ..JointLocConfig::default()
+        };
+        let asked = Arc::new(Mutex::new(Vec::new()));
+        let source = FailsUntil {
+            truth: TruthFixes::new(flight(), 0.1, 11),
+            until_s: 12.0,
+            asked: asked.clone(),
+        };
+        let (_, outputs) = run(builder(flight(), config.clone(), source), &config);
+        let asked = asked.lock().unwrap().clone();
+        (asked, outputs)
+    };
+    let second = |t: &f64| t.round() as i64;
+    let (asked, outputs) = run_with(8.0);
+    let before: Vec<i64> = asked.iter().filter(|&&t| t < 16.0).map(second).collect();
+    assert_eq!(before, [0, 1, 3, 7, 15], "searches before the first fix");
+    let s = &outputs.summary;
+    // 16 due searches in 0–15 s, 5 made; then one every second again.
+    assert_eq!(s.skipped_backoff, 11, "{s:?}");
+    assert_eq!(s.absolute_attempts + s.skipped_backoff, 41, "{s:?}");
+    assert_eq!(
+        outputs.fixes.first().map(|f| second(&f.timestamp)),
+        Some(15)
+    );
+    let e = rmse(&ground_truth(flight()), &online(&outputs));
+    assert!(e < 0.3, "online rmse {e:.3} m");
+
+    let (asked, outputs) = run_with(0.0);
+    assert_eq!(asked.len(), 41, "0: a search at every due frame");
+    assert_eq!(outputs.summary.skipped_backoff, 0);
+    assert_eq!(
+        outputs.fixes.first().map(|f| second(&f.timestamp)),
+        Some(12)
+    );
+}

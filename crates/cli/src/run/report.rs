@@ -35,6 +35,7 @@ pub(super) fn print(outputs: &Outputs) {
     println!(
         "fixes: {} attempts, {} found, {} used, {} inliers of the final alignment; \
          {} skipped (thread busy), {} skipped (not tracked yet), {} skipped (outage), \
+         {} skipped (backing off before the first fix), \
          {} made wrong on purpose; {} through virtual frames, {} without one",
         s.absolute_attempts,
         s.fixes_found,
@@ -43,6 +44,7 @@ pub(super) fn print(outputs: &Outputs) {
         s.skipped_busy,
         s.skipped_untracked,
         s.skipped_outage,
+        s.skipped_backoff,
         s.fixes_injected_wrong,
         s.virtual_frames,
         s.skipped_no_view

@@ -100,6 +100,10 @@ pub struct Summary {
     /// no tracked frames yet).
     #[serde(default)]
     pub skipped_no_view: usize,
+    /// Frames due while searches with nothing to search around yet backed off (sequential
+    /// mode, before the first fix).
+    #[serde(default)]
+    pub skipped_backoff: usize,
     pub fixes_injected_wrong: usize,
     pub first_fix_global: Option<bool>,
     pub first_fix_searched_tiles: Option<usize>,
