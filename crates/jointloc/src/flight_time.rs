@@ -64,16 +64,20 @@ pub(crate) fn sweep_due(streak: Option<(f64, f64)>, now: f64, every_s: f64) -> b
 /// Whether a search with nothing to search around yet (no fix, no alignment, no world pose)
 /// waits at frame time `now`: after `failures` such searches failed in a row, the latest at
 /// `latest`, the next is made once `interval_s × 2^(failures − 1)` has passed, at most
-/// `max_s` (0: never waits). Each covers the whole map (seconds, on a map of 60 m) and the
-/// ground that made it fail is still under the camera for the next few.
+/// `max_s` (0: never waits; nor while the interval is not known yet). Each covers the whole
+/// map (seconds, on a map of 60 m) and the ground that made it fail is still under the
+/// camera for the next few.
 pub(crate) fn blind_search_waits(
     failures: usize,
     latest: f64,
     now: f64,
-    interval_s: f64,
+    interval_s: Option<f64>,
     max_s: f64,
 ) -> bool {
-    if failures == 0 || max_s <= 0.0 || interval_s.is_nan() || interval_s <= 0.0 {
+    let Some(interval_s) = interval_s.filter(|&dt| dt > 0.0) else {
+        return false;
+    };
+    if failures == 0 || max_s <= 0.0 {
         return false;
     }
     let doublings = (failures - 1).min(30) as i32;
@@ -92,7 +96,7 @@ mod tests {
             let (mut failures, mut latest, mut made) = (0, 0.0, Vec::new());
             for k in 0..40 {
                 let now = k as f64 * 0.2 * 5.0;
-                if !blind_search_waits(failures, latest, now, 1.0, max_s) {
+                if !blind_search_waits(failures, latest, now, Some(1.0), max_s) {
                     made.push(now);
                     failures += 1;
                     latest = now;
@@ -111,8 +115,8 @@ mod tests {
             "capped at the interval: no backoff"
         );
         // No failure yet, or no interval known yet: search.
-        assert!(!blind_search_waits(0, 0.0, 0.0, 1.0, 8.0));
-        assert!(!blind_search_waits(3, 0.0, 0.5, f64::NAN, 8.0));
+        assert!(!blind_search_waits(0, 0.0, 0.0, Some(1.0), 8.0));
+        assert!(!blind_search_waits(3, 0.0, 0.5, None, 8.0));
     }
 
     #[test]

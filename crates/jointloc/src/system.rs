@@ -808,13 +808,11 @@ impl JointLoc {
         else {
             return false;
         };
-        let interval =
-            self.clock.frame_period_s().unwrap_or(f64::NAN) * self.config.fusion_every as f64;
         crate::flight_time::blind_search_waits(
             self.failures_in_a_row,
             latest,
             timestamp,
-            interval,
+            self.search_interval_s(),
             self.config.blind_retry_max_s,
         )
     }

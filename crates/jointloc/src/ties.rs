@@ -240,11 +240,15 @@ impl JointLoc {
     /// The fixes a span of `span_s` seconds holds at the search rate (`fusion_every` frames
     /// at the flight's frame rate so far), at least `min`; 0 when `span_s` is 0.
     pub(crate) fn fixes_in(&self, span_s: f64, min: usize) -> usize {
-        let interval = self
-            .clock
+        flight_time::fixes_in(span_s, self.search_interval_s(), min)
+    }
+
+    /// Seconds between due searches: `fusion_every` frames at the flight's frame rate so far;
+    /// `None` before two frames with distinct times.
+    pub(crate) fn search_interval_s(&self) -> Option<f64> {
+        self.clock
             .frame_period_s()
-            .map(|p| p * self.config.fusion_every as f64);
-        flight_time::fixes_in(span_s, interval, min)
+            .map(|p| p * self.config.fusion_every as f64)
     }
 
     /// Where the window's map points sit on the elevation model through the new alignment:
