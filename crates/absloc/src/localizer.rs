@@ -754,7 +754,7 @@ impl AbsLocalizer {
                     &first_angles,
                     scale,
                     expected,
-                    false,
+                    None,
                     &mut views,
                     &mut searched,
                     &mut best_rejection,
@@ -1158,9 +1158,10 @@ impl AbsLocalizer {
     /// A search of `all` tiles over `angles` (the sweep, or `[h]` where `heading` is `h`)
     /// with no prior position: the coarse places first where the search is ranked (more
     /// pairs than [`ShortlistConfig::candidates`], not 0) and
-    /// [`AbsLocConfig::coarse_places_first`] is on, else, or when they give nothing, the pairs
-    /// shortlisted by VLAD. Also whether the shortlist cut the search short (its fix is then
-    /// refined over the other tiles that contain it).
+    /// [`AbsLocConfig::coarse_places_first`] is on (then, when they give nothing,
+    /// [`ShortlistConfig::after_coarse_places`] pairs of the VLAD shortlist: none by default),
+    /// else the pairs shortlisted by VLAD. Also whether the shortlist cut the search short
+    /// (its fix is then refined over the other tiles that contain it).
     #[allow(clippy::too_many_arguments)]
     fn search_whole_map(
         &self,
@@ -1178,10 +1179,10 @@ impl AbsLocalizer {
     ) -> Result<(Option<Candidate>, bool)> {
         let keep = self.config.shortlist.candidates;
         let ranked = keep > 0 && all.len() * angles.len() > keep;
-        if ranked
+        let coarse_first = ranked
             && self.config.coarse_places_first
-            && self.config.correlation.whole_map.candidates > 0
-        {
+            && self.config.correlation.whole_map.candidates > 0;
+        if coarse_first {
             let found = self.coarse_first(
                 store,
                 frame,
@@ -1197,6 +1198,14 @@ impl AbsLocalizer {
                 return Ok((found, false));
             }
         }
+        let keep = if coarse_first {
+            self.config.shortlist.after_coarse_places.min(keep)
+        } else {
+            keep
+        };
+        if coarse_first && keep == 0 {
+            return Ok((None, false));
+        }
         let found = self.search(
             store,
             frame,
@@ -1205,7 +1214,7 @@ impl AbsLocalizer {
             angles,
             scale,
             expected,
-            true,
+            ranked.then_some(keep),
             views,
             searched,
             best_rejection,
@@ -1219,7 +1228,7 @@ impl AbsLocalizer {
     /// pooled map by its gradients and grey levels, and the tile centred nearest each of the
     /// best places is matched at that place's heading, best place first, until one gives a
     /// decisive match (the early-stop rule of [`crate::search`]). `None` when no place gave
-    /// an accepted match: the VLAD shortlist follows.
+    /// an accepted match.
     #[allow(clippy::too_many_arguments)]
     fn coarse_first(
         &self,
@@ -1263,7 +1272,7 @@ impl AbsLocalizer {
                 &[angle],
                 scale,
                 expected,
-                false,
+                None,
                 views,
                 searched,
                 best_rejection,
@@ -1286,6 +1295,13 @@ impl AbsLocalizer {
                     break;
                 }
             }
+        }
+        if best.is_none() {
+            tracing::debug!(
+                places = places.len(),
+                ms = t.elapsed().as_secs_f64() * 1e3,
+                "whole-map search: no coarse place matched"
+            );
         }
         Ok(best)
     }
@@ -1370,7 +1386,7 @@ impl AbsLocalizer {
             &[angle],
             scale,
             expected,
-            false,
+            None,
             views,
             searched,
             &mut rejection,
@@ -1506,7 +1522,7 @@ impl AbsLocalizer {
 
     /// Best accepted candidate over `tiles` × `angles` (views are detected once per angle and
     /// kept in `views` for reuse by a later pass), with the early stop. `rank`: a search with
-    /// no prior position, whose pairs are shortlisted by [`crate::shortlist`].
+    /// no prior position, whose pairs are shortlisted by [`crate::shortlist`] to this many.
     #[allow(clippy::too_many_arguments)]
     fn search(
         &self,
@@ -1517,7 +1533,7 @@ impl AbsLocalizer {
         angles: &[f64],
         scale: f64,
         expected: f64,
-        rank: bool,
+        rank: Option<usize>,
         views: &mut Vec<(f64, QueryView)>,
         searched: &mut usize,
         best_rejection: &mut Option<Rejection>,
@@ -1539,8 +1555,7 @@ impl AbsLocalizer {
             .flat_map(|&t| view_ids.iter().map(move |&v| (v, t)))
             .collect();
         let view_refs: Vec<&QueryView> = views.iter().map(|(_, v)| v).collect();
-        let keep = self.config.shortlist.candidates;
-        if rank && keep > 0 && jobs.len() > keep {
+        if let Some(keep) = rank.filter(|&k| k > 0 && jobs.len() > k) {
             let t = Instant::now();
             if self.shortlist.get().is_none() {
                 let built = TileIndex::build(store, &self.tiles, &self.config.shortlist)?;
@@ -1572,7 +1587,9 @@ impl AbsLocalizer {
             }
         }
         let result = search::run(&input, &view_refs, &jobs)?;
-        if rank && let Some(b) = &result.best {
+        if rank.is_some()
+            && let Some(b) = &result.best
+        {
             // Where the ranking had the pair that won (how deep the shortlist must reach).
             let at = jobs.iter().position(|&j| j == (b.view, b.tile));
             tracing::debug!(rank = ?at, inliers = b.inliers.len(), "whole-map search: best pair");

@@ -32,6 +32,11 @@ pub struct ShortlistConfig {
     /// (view, tile) pairs matched by a whole-map search, best-ranked first; 0 matches every
     /// pair (the paper's exhaustive search). A search with fewer pairs is not ranked.
     pub candidates: usize,
+    /// Pairs matched when the coarse places ([`crate::AbsLocConfig::coarse_places_first`])
+    /// were tried first and gave no fix, at most `candidates`. 0 (the default): none; in
+    /// flight the next search comes a second or two later, and a failing search paid for
+    /// both (docs/absloc.md §"A failing whole-map search").
+    pub after_coarse_places: usize,
     /// Visual words of the vocabulary.
     pub words: usize,
     /// Tile descriptors sampled (evenly, in tile order) to train the vocabulary.
@@ -46,6 +51,7 @@ impl Default for ShortlistConfig {
     fn default() -> Self {
         Self {
             candidates: 48,
+            after_coarse_places: 0,
             words: 64,
             training_descriptors: 40_000,
             iterations: 12,

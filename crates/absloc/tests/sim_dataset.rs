@@ -157,6 +157,8 @@ fn a_shortlisted_whole_map_search_finds_the_exhaustive_fixes() {
             ..Default::default()
         };
         config.shortlist.candidates = candidates;
+        // The shortlist also where the coarse places find nothing.
+        config.shortlist.after_coarse_places = candidates;
         let tiles = MapTiles::open(dir).unwrap();
         let pairs = tiles.len() * config.rotation_hypotheses;
         assert!(pairs > 8, "{pairs} pairs: the shortlist would not cut");

@@ -317,6 +317,32 @@ fn the_predicted_window_fixes_the_frame_from_one_matcher_call() {
 }
 
 #[test]
+fn after_the_coarse_places_fail_the_shortlist_matches_its_own_count() {
+    // A frame of another map: the coarse places are matched and fail, then the shortlist
+    // matches `after_coarse_places` pairs (none at 0), never `candidates`.
+    for seed in [31, 32] {
+        let elsewhere = localizer(seed + 100, 2000, AbsLocConfig::default());
+        let stranger = frame(&elsewhere, 1000.0, 1000.0, 0.7);
+        let mut searched = Vec::new();
+        for after in [48, 16, 0] {
+            let mut config = AbsLocConfig::default();
+            config.shortlist.after_coarse_places = after;
+            let mut loc = localizer(seed, 2000, config);
+            let out = loc.localize(&stranger, ALT, &Prior::default()).unwrap();
+            let Outcome::Failed(failure) = out else {
+                panic!("seed {seed}, after {after}: a fix on another map: {out:?}");
+            };
+            searched.push(failure.searched_tiles);
+        }
+        let places = AbsLocConfig::default().correlation.whole_map.candidates;
+        assert!(searched[2] <= places, "seed {seed}: {searched:?}");
+        assert!(searched[2] > 0, "seed {seed}: {searched:?}");
+        assert_eq!(searched[1] - searched[2], 16, "seed {seed}: {searched:?}");
+        assert_eq!(searched[0] - searched[2], 48, "seed {seed}: {searched:?}");
+    }
+}
+
+#[test]
 fn a_shortlisted_whole_map_search_finds_the_exhaustive_fix_from_fewer_pairs() {
     // 7 × 7 tiles × 8 rotations = 392 pairs; no prior, so both search the whole map.
     for seed in [21, 22, 23] {
