@@ -51,6 +51,14 @@ pub struct AbsLocConfig {
     /// with the most inliers contains the frame, so with a sound prediction the outer tiles
     /// only cost time (7× on medium maps, where a low confidence opens the whole map).
     pub inner_tiles_first: bool,
+    /// With a prior position but no heading (a take-off given with `--start`, a failing
+    /// streak's sweep), match the tiles of the radius that do not contain the position at
+    /// every heading too, before the whole-map search. Off (default): the tiles that contain
+    /// it (≤ 4 tiles × the headings), then the whole-map search, which ranks places by a
+    /// coarse correlation first; on a small map the radius holds every tile, and its sweep
+    /// was 128 pairs, 10 s (`docs/absloc.md` §"A heading sweep around a known position: the
+    /// tiles that contain it").
+    pub sweep_outer_tiles: bool,
     /// With a prior position and heading (the fused pose in flight), first match the view
     /// against the map's keypoints over its predicted footprint and this margin, metres, on
     /// each side ([`crate::window`]): one matcher input instead of up to four tiles. Its fix
@@ -132,6 +140,7 @@ impl Default for AbsLocConfig {
             area_prediction: true,
             global_fallback: true,
             inner_tiles_first: true,
+            sweep_outer_tiles: false,
             predicted_window_margin_m: 1.5,
             tiles_after_window: false,
             predicted_window_tilt_deg: 3.0,
@@ -684,7 +693,14 @@ impl AbsLocalizer {
             }
             _ => Vec::new(),
         };
-        let passes: Vec<Vec<usize>> = if !inner.is_empty() && inner.len() < first.len() {
+        // A sweep around a position leaves the outer tiles to the whole-map search.
+        let skip_outer = heading.is_none()
+            && !self.config.sweep_outer_tiles
+            && !inner.is_empty()
+            && inner.len() < first.len();
+        let passes: Vec<Vec<usize>> = if skip_outer {
+            vec![inner]
+        } else if !inner.is_empty() && inner.len() < first.len() {
             let outer = first
                 .iter()
                 .copied()
@@ -768,7 +784,8 @@ impl AbsLocalizer {
         let mut global = local_is_all && !from_window;
         // Retry everywhere, with the rotation sweep unless the caller fixed the heading; not
         // when that is exactly what was just searched.
-        let same_again = local_is_all && (heading.is_none() || prior.heading.is_some());
+        let same_again =
+            local_is_all && !skip_outer && (heading.is_none() || prior.heading.is_some());
         if found.is_none() && self.config.global_fallback && !same_again {
             let angles = if prior.heading.is_some() {
                 first_angles.clone()

@@ -427,3 +427,69 @@ fn a_shortlisted_whole_map_search_finds_the_exhaustive_fix_from_fewer_pairs() {
         );
     }
 }
+
+#[test]
+fn a_heading_sweep_around_a_position_matches_the_tiles_that_contain_it() {
+    // A 3 × 3-tile map: the search radius around any position holds every tile, so the sweep
+    // with the outer tiles is every tile at every heading.
+    for seed in [41, 42] {
+        let (u, v, heading) = (700.0 + 20.0 * (seed - 40) as f64, 720.0, 0.7);
+        let run = |sweep_outer_tiles: bool, at: (f64, f64)| {
+            let mut loc = localizer(
+                seed,
+                1000,
+                AbsLocConfig {
+                    sweep_outer_tiles,
+                    ..Default::default()
+                },
+            );
+            let (x, y) = loc.tiles().pixel_to_world(u, v);
+            let (px, py) = loc.tiles().pixel_to_world(at.0, at.1);
+            let prior = Prior {
+                position: Some([px, py]),
+                heading: None,
+            };
+            let out = loc.localize(&frame(&loc, u, v, heading), ALT, &prior);
+            let fix = out
+                .unwrap()
+                .fix()
+                .unwrap_or_else(|| panic!("seed {seed}, outer {sweep_outer_tiles}, at {at:?}"))
+                .clone();
+            let err = ((fix.position[0] - x).powi(2) + (fix.position[1] - y).powi(2)).sqrt();
+            assert!(
+                err < 0.15,
+                "seed {seed}, outer {sweep_outer_tiles}: {err} m"
+            );
+            fix
+        };
+        let sweep = AbsLocConfig::default().rotation_hypotheses;
+        // The position is right: the tiles that contain it hold the frame, with or without
+        // the outer tiles.
+        let (near, near_outer) = (
+            run(false, (u + 8.0, v - 5.0)),
+            run(true, (u + 8.0, v - 5.0)),
+        );
+        assert_eq!(near.position, near_outer.position, "seed {seed}");
+        assert!(
+            near.searched_tiles <= 4 * sweep,
+            "seed {seed}: {}",
+            near.searched_tiles
+        );
+        // The position is 25 m off: after its own tiles, the whole-map search (coarse places
+        // first) instead of every other tile at every heading.
+        let far_at = (150.0, 130.0);
+        let (far, far_outer) = (run(false, far_at), run(true, far_at));
+        let places = AbsLocConfig::default().correlation.whole_map.candidates;
+        assert!(
+            far.searched_tiles <= 4 * sweep + places + 3,
+            "seed {seed}: {}",
+            far.searched_tiles
+        );
+        assert!(
+            far.searched_tiles < far_outer.searched_tiles,
+            "seed {seed}: {} vs {}",
+            far.searched_tiles,
+            far_outer.searched_tiles
+        );
+    }
+}
