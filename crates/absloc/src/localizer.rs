@@ -693,22 +693,20 @@ impl AbsLocalizer {
             }
             _ => Vec::new(),
         };
+        let split = !inner.is_empty() && inner.len() < first.len();
         // A sweep around a position leaves the outer tiles to the whole-map search.
-        let skip_outer = heading.is_none()
-            && !self.config.sweep_outer_tiles
-            && !inner.is_empty()
-            && inner.len() < first.len();
-        let passes: Vec<Vec<usize>> = if skip_outer {
+        let skip_outer = split && heading.is_none() && !self.config.sweep_outer_tiles;
+        let passes: Vec<Vec<usize>> = if !split {
+            vec![first]
+        } else if skip_outer {
             vec![inner]
-        } else if !inner.is_empty() && inner.len() < first.len() {
+        } else {
             let outer = first
                 .iter()
                 .copied()
                 .filter(|t| !inner.contains(t))
                 .collect();
             vec![inner, outer]
-        } else {
-            vec![first]
         };
         let mut from_window = false;
         let (mut found, mut shortlisted) = if local.is_none() {
