@@ -128,6 +128,7 @@ impl JointLoc {
                 world: self.corrected(&t.world_ground),
                 weight: t.weight,
                 sigma_scale: 1.0,
+                vertical_sigma_scale: loose,
                 tolerance: Tolerance {
                     horizontal_m: threshold,
                     vertical_m: threshold * loose,
@@ -140,6 +141,7 @@ impl JointLoc {
                     world: self.corrected(&t.world_camera),
                     weight: t.weight,
                     sigma_scale: self.nadir_sigma_scale(t),
+                    vertical_sigma_scale: loose,
                     tolerance: Tolerance::sphere(threshold * loose),
                 });
             }

@@ -71,6 +71,8 @@ pub struct FinalTie {
     pub weight: f64,
     /// σ of this factor over `global_sigma` (the nadir factor's is smaller).
     pub sigma_scale: f64,
+    /// σ of its world z over its σ ([`GlobalPositionFactor::vertical_sigma_scale`]).
+    pub vertical_sigma_scale: f64,
     /// How far from the point through the local alignments the fix may be and still be
     /// used (the alignment's inlier bound for this pair).
     pub tolerance: Tolerance,
@@ -154,6 +156,7 @@ pub fn refine(
             sigma: lba.global_sigma * tie.sigma_scale,
             kernel: lba.global_kernel,
             point_in_camera,
+            vertical_sigma_scale: tie.vertical_sigma_scale,
             ..GlobalPositionFactor::new(ci, tie.world.coords, Sim3::identity(), tie.weight)
         });
         stats.global_factors += 1;
@@ -444,6 +447,7 @@ mod tests {
                     world,
                     weight: 1.0,
                     sigma_scale,
+                    vertical_sigma_scale: 1.0,
                     tolerance: Tolerance::sphere(2.0),
                 });
             }

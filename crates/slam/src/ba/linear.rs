@@ -224,13 +224,14 @@ fn camera_terms_cost(problem: &BaProblem, state: &State, rot: &[Matrix3<f64>]) -
             continue;
         }
         let t = state.poses[g.camera].translation();
-        let (r, _) = global_position(
+        let (mut r, _) = global_position(
             &rot[g.camera],
             &t,
             &g.slam_to_world,
             &g.point_in_camera,
             &g.world_position,
         );
+        g.scale_vertical(&mut r, None);
         cost += g.weight * g.kernel.rho(r.norm_squared() / (g.sigma * g.sigma));
     }
     for p in &problem.position_priors {
@@ -329,13 +330,14 @@ impl Linearization {
             if g.weight == 0.0 {
                 continue;
             }
-            let (r, j) = global_position(
+            let (mut r, mut j) = global_position(
                 &rot[g.camera],
                 &trans[g.camera],
                 &g.slam_to_world,
                 &g.point_in_camera,
                 &g.world_position,
             );
+            g.scale_vertical(&mut r, Some(&mut j));
             let inv_var = 1.0 / (g.sigma * g.sigma);
             let omega = g.weight * g.kernel.weight(r.norm_squared() * inv_var) * inv_var;
             let jt = j.transpose() * omega;

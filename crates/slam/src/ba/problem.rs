@@ -2,7 +2,7 @@
 //! its local window, solves it, and writes the optimised poses and points back.
 
 use jointloc_geometry::{PinholeCamera, RobustKernel, Sim3, WorldToCamera};
-use nalgebra::{Point2, Vector3};
+use nalgebra::{Matrix3x6, Point2, Vector3};
 
 use crate::{Result, SlamError};
 
@@ -87,9 +87,26 @@ pub struct GlobalPositionFactor {
     pub sigma: f64,
     /// Kernel on the normalised squared residual `‖r‖²/σ²`.
     pub kernel: RobustKernel,
+    /// σ of the world z component over `sigma` (1: isotropic). A fix's x, y come from the
+    /// map, its z from the altimeter and the elevation model, whose errors grow with the
+    /// range: at 100 m an isotropic σ let the heights' noise roll the map (§ "The end at
+    /// altitude" of the fusion's documentation).
+    pub vertical_sigma_scale: f64,
 }
 
 impl GlobalPositionFactor {
+    /// `(r, J)` whitened for the anisotropy: the z row divided by `vertical_sigma_scale`, so
+    /// that `‖r‖²/σ²` is the factor's normalised squared residual.
+    pub(crate) fn scale_vertical(&self, r: &mut Vector3<f64>, j: Option<&mut Matrix3x6<f64>>) {
+        if self.vertical_sigma_scale != 1.0 {
+            let k = 1.0 / self.vertical_sigma_scale;
+            r.z *= k;
+            if let Some(j) = j {
+                j.row_mut(2).scale_mut(k);
+            }
+        }
+    }
+
     /// A factor with `σ_G = 1 m` and a Huber kernel at the 95 % χ² bound of 3 DoF.
     pub fn new(
         camera: usize,
@@ -107,6 +124,7 @@ impl GlobalPositionFactor {
             kernel: RobustKernel::Huber {
                 delta: CHI2_3DOF_95.sqrt(),
             },
+            vertical_sigma_scale: 1.0,
         }
     }
 }
@@ -261,14 +279,16 @@ impl BaProblem {
                 || !all_finite(&g.point_in_camera)
                 || !g.weight.is_finite()
                 || !g.sigma.is_finite()
+                || !g.vertical_sigma_scale.is_finite()
                 || !sim3_finite(s)
             {
                 return Err(SlamError::NonFinite("global-position factor"));
             }
-            if g.weight < 0.0 || g.sigma <= 0.0 || s.scale <= 0.0 {
+            if g.weight < 0.0 || g.sigma <= 0.0 || g.vertical_sigma_scale <= 0.0 || s.scale <= 0.0 {
                 return Err(SlamError::InvalidProblem(format!(
-                    "global factor {i}: weight {} must be >= 0, sigma {} and scale {} > 0",
-                    g.weight, g.sigma, s.scale
+                    "global factor {i}: weight {} must be >= 0, sigma {}, vertical sigma scale {} \
+                     and scale {} > 0",
+                    g.weight, g.sigma, g.vertical_sigma_scale, s.scale
                 )));
             }
             check_kernel(&g.kernel)?;

@@ -188,12 +188,13 @@ pub(crate) fn chi2_at(
         .global_factors
         .iter()
         .map(|g| {
-            let (r, _) = global_point_residual(
+            let (mut r, _) = global_point_residual(
                 &poses[g.camera],
                 &g.slam_to_world,
                 &g.point_in_camera,
                 &g.world_position,
             );
+            g.scale_vertical(&mut r, None);
             r.norm_squared() / (g.sigma * g.sigma)
         })
         .collect();

@@ -326,6 +326,69 @@ fn ground_point_fixes_pull_the_map_onto_the_points_they_fix() {
 }
 
 #[test]
+fn loose_heights_of_ground_point_fixes_do_not_roll_the_map() {
+    // At altitude a fix's x, y come from the map and its z from the altimeter, whose noise
+    // grows with the range. Heights 3 cm off per metre across the track, under fixes of the
+    // camera centres (right, but 4× looser): isotropic ground-point fixes roll the map to
+    // fit the wrong heights; with their z σ ten times their x, y σ the cameras stay where
+    // the camera-centre fixes and the images put them.
+    let mut isotropic = Vec::new();
+    let mut loose = Vec::new();
+    for seed in SEEDS {
+        let config = clean_config(80 + seed);
+        let s = scene(config);
+        let (mut p, centres) = drifted(&s, &Sim3::identity());
+        let cy = centres.iter().map(|c| c.y).sum::<f64>() / centres.len() as f64;
+        let o = Vector3::new(0.0, 0.0, config.altitude_m);
+        for (i, t) in s.true_cameras.iter().enumerate() {
+            let mut ground = t.inverse().transform_point(&Point3::from(o)).coords;
+            ground.z += 0.03 * (ground.y - cy);
+            p.add_global_factor(GlobalPositionFactor {
+                sigma: 0.15,
+                point_in_camera: o,
+                ..GlobalPositionFactor::new(i, ground, Sim3::identity(), 1.0)
+            });
+            p.add_global_factor(GlobalPositionFactor {
+                sigma: 0.6,
+                ..GlobalPositionFactor::new(i, centres[i], Sim3::identity(), 1.0)
+            });
+        }
+        let n = p.global_factors.len();
+        let config = BundleAdjustmentConfig {
+            max_iterations: 50,
+            ..Default::default()
+        };
+        for (scale, out) in [(1.0, &mut isotropic), (10.0, &mut loose)] {
+            for g in p.global_factors.iter_mut().step_by(2) {
+                g.vertical_sigma_scale = scale;
+            }
+            assert_eq!(p.global_factors.len(), n);
+            let r = bundle_adjust(&p, &config).unwrap();
+            let e = errors(&p, &r.cameras, &r.points, &s);
+            eprintln!("seed {seed}, z σ × {scale}: {e:?}");
+            out.push(e.rotation_max_deg);
+        }
+    }
+    for (i, l) in isotropic.iter().zip(&loose) {
+        assert!(*i > 0.2, "the wrong heights roll the isotropic map: {i}°");
+        assert!(*l < i / 3.0, "loose heights {l}° vs isotropic {i}°");
+    }
+}
+
+#[test]
+fn a_non_positive_vertical_sigma_scale_is_an_error() {
+    let s = scene(clean_config(90));
+    let mut p = s.problem.clone();
+    for v in [0.0, -1.0, f64::NAN] {
+        p.global_factors = vec![GlobalPositionFactor {
+            vertical_sigma_scale: v,
+            ..GlobalPositionFactor::new(1, Vector3::zeros(), Sim3::identity(), 1.0)
+        }];
+        assert!(p.validate().is_err(), "{v}");
+    }
+}
+
+#[test]
 fn global_factors_use_the_slam_to_world_similarity() {
     // SLAM frame = a rotated, shifted, 0.4-scaled copy of the world, plus a 10 % scale drift
     // the similarity does not know about.
