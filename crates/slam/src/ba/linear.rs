@@ -14,9 +14,7 @@
 use jointloc_geometry::{RobustKernel, WorldToCamera};
 use nalgebra::{DMatrix, DVector, Matrix3, Matrix6, Matrix6x3, Vector3, Vector6};
 
-use super::factors::{
-    global_position, ground_height_residual, position_prior, reprojection, reprojection_error,
-};
+use super::factors::{ground_height_residual, position_prior, reprojection, reprojection_error};
 use super::problem::BaProblem;
 
 /// Marquardt scaling: the damping adds `μ · clamp(H_kk)` to each diagonal entry (as Ceres does),
@@ -224,14 +222,7 @@ fn camera_terms_cost(problem: &BaProblem, state: &State, rot: &[Matrix3<f64>]) -
             continue;
         }
         let t = state.poses[g.camera].translation();
-        let (mut r, _) = global_position(
-            &rot[g.camera],
-            &t,
-            &g.slam_to_world,
-            &g.point_in_camera,
-            &g.world_position,
-        );
-        g.scale_vertical(&mut r, None);
+        let (r, _) = g.whitened_residual(&rot[g.camera], &t);
         cost += g.weight * g.kernel.rho(r.norm_squared() / (g.sigma * g.sigma));
     }
     for p in &problem.position_priors {
@@ -330,14 +321,7 @@ impl Linearization {
             if g.weight == 0.0 {
                 continue;
             }
-            let (mut r, mut j) = global_position(
-                &rot[g.camera],
-                &trans[g.camera],
-                &g.slam_to_world,
-                &g.point_in_camera,
-                &g.world_position,
-            );
-            g.scale_vertical(&mut r, Some(&mut j));
+            let (r, j) = g.whitened_residual(&rot[g.camera], &trans[g.camera]);
             let inv_var = 1.0 / (g.sigma * g.sigma);
             let omega = g.weight * g.kernel.weight(r.norm_squared() * inv_var) * inv_var;
             let jt = j.transpose() * omega;

@@ -2,8 +2,9 @@
 //! its local window, solves it, and writes the optimised poses and points back.
 
 use jointloc_geometry::{PinholeCamera, RobustKernel, Sim3, WorldToCamera};
-use nalgebra::{Matrix3x6, Point2, Vector3};
+use nalgebra::{Matrix3, Matrix3x6, Point2, Vector3};
 
+use super::factors::global_position;
 use crate::{Result, SlamError};
 
 /// χ² of 3 degrees of freedom at 95 %: the default Huber threshold of a global-position factor.
@@ -95,16 +96,27 @@ pub struct GlobalPositionFactor {
 }
 
 impl GlobalPositionFactor {
-    /// `(r, J)` whitened for the anisotropy: the z row divided by `vertical_sigma_scale`, so
-    /// that `‖r‖²/σ²` is the factor's normalised squared residual.
-    pub(crate) fn scale_vertical(&self, r: &mut Vector3<f64>, j: Option<&mut Matrix3x6<f64>>) {
+    /// Residual and Jacobian at a camera pose ([`super::factors::global_point_residual`]),
+    /// the z row divided by `vertical_sigma_scale`: whitened for the anisotropy, so that
+    /// `‖r‖²/σ²` is the factor's normalised squared residual.
+    pub(crate) fn whitened_residual(
+        &self,
+        rotation: &Matrix3<f64>,
+        translation: &Vector3<f64>,
+    ) -> (Vector3<f64>, Matrix3x6<f64>) {
+        let (mut r, mut j) = global_position(
+            rotation,
+            translation,
+            &self.slam_to_world,
+            &self.point_in_camera,
+            &self.world_position,
+        );
         if self.vertical_sigma_scale != 1.0 {
             let k = 1.0 / self.vertical_sigma_scale;
             r.z *= k;
-            if let Some(j) = j {
-                j.row_mut(2).scale_mut(k);
-            }
+            j.row_mut(2).scale_mut(k);
         }
+        (r, j)
     }
 
     /// A factor with `σ_G = 1 m` and a Huber kernel at the 95 % χ² bound of 3 DoF.

@@ -5,7 +5,7 @@ use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
 
 use super::config::BundleAdjustmentConfig;
-use super::factors::{global_point_residual, reprojection_error};
+use super::factors::reprojection_error;
 use super::linear::{Layout, Linearization, State, evaluate_cost};
 use super::problem::BaProblem;
 use crate::Result;
@@ -188,13 +188,8 @@ pub(crate) fn chi2_at(
         .global_factors
         .iter()
         .map(|g| {
-            let (mut r, _) = global_point_residual(
-                &poses[g.camera],
-                &g.slam_to_world,
-                &g.point_in_camera,
-                &g.world_position,
-            );
-            g.scale_vertical(&mut r, None);
+            let pose = &poses[g.camera];
+            let (r, _) = g.whitened_residual(&pose.rotation_matrix(), &pose.translation());
             r.norm_squared() / (g.sigma * g.sigma)
         })
         .collect();
