@@ -46,33 +46,17 @@ fn kernel(cfg: &SsimConfig) -> Vec<f64> {
     w.into_iter().map(|v| v / s).collect()
 }
 
-/// Separable "valid" correlation: output `(w − 2r) × (h − 2r)`.
-fn blur_valid(img: &[f64], w: usize, h: usize, k: &[f64]) -> Vec<f64> {
-    let r = k.len() / 2;
-    let (ow, oh) = (w - 2 * r, h - 2 * r);
-    let mut rows = vec![0.0; ow * h];
-    for y in 0..h {
-        let src = &img[y * w..(y + 1) * w];
-        for x in 0..ow {
-            rows[y * ow + x] = k.iter().zip(&src[x..x + k.len()]).map(|(a, b)| a * b).sum();
-        }
-    }
-    let mut out = vec![0.0; ow * oh];
-    for y in 0..oh {
-        for x in 0..ow {
-            out[y * ow + x] = k
-                .iter()
-                .enumerate()
-                .map(|(i, kv)| kv * rows[(y + i) * ow + x])
-                .sum();
-        }
-    }
-    out
-}
+/// Number of local statistics: μa, μb, E[a²], E[b²], E[ab].
+const STATS: usize = 5;
 
 /// Mean SSIM of `a` and `b` (`width × height`, row-major) over the pixels whose whole window
 /// lies in `mask` (everywhere when `None`). `None` when no pixel qualifies (region smaller than
 /// the window) or the sizes disagree.
+///
+/// The separable Gaussian runs row by row: each input row is blurred horizontally into a ring
+/// of the last `2r + 1` rows, from which one output row is blurred vertically and scored at
+/// once. The working set stays in cache (a frame warped onto a 25 cm map at 200 m covers about
+/// 900 × 900 map pixels), and each sum adds its taps in order, as a direct window sum would.
 pub fn ssim_masked(
     a: &[f32],
     b: &[f32],
@@ -90,39 +74,73 @@ pub fn ssim_masked(
         return None;
     }
     let k = kernel(cfg);
-    let valid = |i: usize| mask.is_none_or(|m| m[i]);
-    let pick = |f: &dyn Fn(f64, f64) -> f64| -> Vec<f64> {
-        (0..n)
-            .map(|i| {
-                if valid(i) {
-                    f(a[i] as f64, b[i] as f64)
-                } else {
-                    0.0
-                }
-            })
-            .collect()
-    };
-    let mu_a = blur_valid(&pick(&|x, _| x), width, height, &k);
-    let mu_b = blur_valid(&pick(&|_, y| y), width, height, &k);
-    let aa = blur_valid(&pick(&|x, _| x * x), width, height, &k);
-    let bb = blur_valid(&pick(&|_, y| y * y), width, height, &k);
-    let ab = blur_valid(&pick(&|x, y| x * y), width, height, &k);
+    let d = k.len();
+    let ow = width - 2 * r;
     // A window is fully inside the mask when the box count of invalid pixels is zero.
     let inside = window_inside(mask, width, height, r);
     let c1 = (cfg.k1 * cfg.range).powi(2);
     let c2 = (cfg.k2 * cfg.range).powi(2);
+    // The statistics' inputs of one row, one statistic after the other.
+    let mut line = vec![0.0f64; STATS * width];
+    // Horizontally blurred rows: row y in slot y mod d, each STATS × ow.
+    let mut ring = vec![0.0f64; d * STATS * ow];
+    let mut column = vec![0.0f64; STATS * ow];
     let (mut sum, mut count) = (0.0, 0usize);
-    for (i, &ok) in inside.iter().enumerate() {
-        if !ok {
+    for y in 0..height {
+        let row = y * width;
+        let (va, rest) = line.split_at_mut(width);
+        let (vb, rest) = rest.split_at_mut(width);
+        let (vaa, rest) = rest.split_at_mut(width);
+        let (vbb, vab) = rest.split_at_mut(width);
+        for x in 0..width {
+            let i = row + x;
+            let (p, q) = if mask.is_none_or(|m| m[i]) {
+                (a[i] as f64, b[i] as f64)
+            } else {
+                (0.0, 0.0)
+            };
+            va[x] = p;
+            vb[x] = q;
+            vaa[x] = p * p;
+            vbb[x] = q * q;
+            vab[x] = p * q;
+        }
+        let slot = &mut ring[(y % d) * STATS * ow..][..STATS * ow];
+        slot.fill(0.0);
+        for (src, dst) in line.chunks_exact(width).zip(slot.chunks_exact_mut(ow)) {
+            for (i, &kv) in k.iter().enumerate() {
+                for (o, s) in dst.iter_mut().zip(&src[i..i + ow]) {
+                    *o += kv * s;
+                }
+            }
+        }
+        if y + 1 < d {
             continue;
         }
-        let (ma, mb) = (mu_a[i], mu_b[i]);
-        let va = aa[i] - ma * ma;
-        let vb = bb[i] - mb * mb;
-        let cov = ab[i] - ma * mb;
-        sum +=
-            ((2.0 * ma * mb + c1) * (2.0 * cov + c2)) / ((ma * ma + mb * mb + c1) * (va + vb + c2));
-        count += 1;
+        let oy = y + 1 - d;
+        column.fill(0.0);
+        for (i, &kv) in k.iter().enumerate() {
+            let src = &ring[((oy + i) % d) * STATS * ow..][..STATS * ow];
+            for (o, s) in column.iter_mut().zip(src) {
+                *o += kv * s;
+            }
+        }
+        let (mu_a, rest) = column.split_at(ow);
+        let (mu_b, rest) = rest.split_at(ow);
+        let (aa, rest) = rest.split_at(ow);
+        let (bb, ab) = rest.split_at(ow);
+        for (x, &ok) in inside[oy * ow..(oy + 1) * ow].iter().enumerate() {
+            if !ok {
+                continue;
+            }
+            let (ma, mb) = (mu_a[x], mu_b[x]);
+            let va = aa[x] - ma * ma;
+            let vb = bb[x] - mb * mb;
+            let cov = ab[x] - ma * mb;
+            sum += ((2.0 * ma * mb + c1) * (2.0 * cov + c2))
+                / ((ma * ma + mb * mb + c1) * (va + vb + c2));
+            count += 1;
+        }
     }
     (count > 0).then(|| sum / count as f64)
 }

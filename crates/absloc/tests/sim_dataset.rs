@@ -245,3 +245,75 @@ fn the_predicted_window_fixes_every_frame_from_one_call_on_a_coarse_map() {
     );
     assert!(searched[1] < searched[0], "matcher calls {searched:?}");
 }
+
+/// At 200 m over a HiRISE-class map (25 cm/px) the frame resampled to the map holds fewer
+/// keypoints per pixel than the map's tiles, and the predicted window is capped to
+/// `window_keypoints_over_view` of the view's count, the strongest: the fixes stay where the
+/// whole window puts them. The camera does not wobble here, so the ground point under the
+/// image centre is under the camera.
+#[test]
+fn at_200_m_the_capped_window_fixes_every_frame_as_the_whole_window_does() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("ds");
+    let mut cfg = jointloc_sim::dataset::SimConfig {
+        seed: 20261207,
+        difficulty: jointloc_sim::Difficulty::Mars,
+        map_size_m: Some(420.0),
+        ..Default::default()
+    };
+    cfg.trajectory.altitude_m = 200.0;
+    cfg.trajectory.length_m = 12.0;
+    cfg.trajectory.rate_hz = 0.5;
+    cfg.trajectory.attitude_jitter_deg = 0.0;
+    jointloc_sim::dataset::generate_dataset(&cfg, &dir, &mut |_, _, _| {}).unwrap();
+    let ds = UavDataset::open(&dir).unwrap();
+    assert!(ds.frames.len() >= 5, "{} frames", ds.frames.len());
+    let cache_dir = tempfile::tempdir().unwrap();
+    let fixes: Vec<Vec<Fix>> = [0.0, 1.0]
+        .into_iter()
+        .map(|ratio| {
+            let config = AbsLocConfig {
+                cache_dir: Some(cache_dir.path().to_path_buf()),
+                window_keypoints_over_view: ratio,
+                ..Default::default()
+            };
+            let tiles = MapTiles::open(&dir).unwrap();
+            let pipeline = pipeline("xfeat-lighterglue");
+            let mut loc = AbsLocalizer::new(tiles, ds.camera, pipeline, config).unwrap();
+            ds.frames
+                .iter()
+                .map(|f| {
+                    let truth = f.ground_truth.unwrap();
+                    let c = truth.centre();
+                    let prior = Prior {
+                        position: Some([c.x, c.y]),
+                        heading: Some(jointloc_absloc::heading_from_rotation(
+                            &truth.rotation().to_rotation_matrix(),
+                        )),
+                    };
+                    let img = image::open(&f.path).unwrap().into_luma8();
+                    let out = loc.localize(&img, f.altitude.unwrap(), &prior).unwrap();
+                    let fix = out
+                        .fix()
+                        .unwrap_or_else(|| panic!("ratio {ratio}: {}: {out:?}", f.path.display()))
+                        .clone();
+                    assert_eq!(fix.searched_tiles, 1, "ratio {ratio}: one matcher call");
+                    let err = (fix.position[0] - c.x).hypot(fix.position[1] - c.y);
+                    assert!(err < 0.5, "ratio {ratio}: {}: {err} m", f.path.display());
+                    fix
+                })
+                .collect()
+        })
+        .collect();
+    for (all, capped) in fixes[0].iter().zip(&fixes[1]) {
+        let d = (all.position[0] - capped.position[0]).hypot(all.position[1] - capped.position[1]);
+        assert!(d < 0.3, "capped and whole window {d} m apart");
+        // Fewer map keypoints to match: the cap took some away.
+        assert!(
+            capped.inliers < all.inliers,
+            "{} vs {}",
+            capped.inliers,
+            all.inliers
+        );
+    }
+}

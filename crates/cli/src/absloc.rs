@@ -1,6 +1,7 @@
 //! `jointloc absloc`: absolute localisation alone on every k-th frame of a dataset. Writes the
 //! fixes (TUM columns + confidence + tile) and prints the 2-D error statistics against ground
-//! truth, the success rate (error < 1 m) and the time per fix.
+//! truth, the success rate (within 1 m of the ground point a fix measures, where the dataset has an
+//! elevation model; else of the camera's x, y) and the time per fix.
 
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
@@ -297,10 +298,17 @@ fn summarise(rows: &[Row]) -> (String, serde_json::Value) {
     let fixes = rows.iter().filter(|r| r.fix.is_some()).count();
     let errors: Vec<f64> = rows.iter().filter_map(|r| r.error).collect();
     let stats = Statistics::from_errors(&errors).ok();
-    let success = errors.iter().filter(|&&e| e < 1.0).count();
+    // A fix is judged by the point it measures, the ground under the optical axis, where the
+    // dataset has an elevation model: at 200 m a tilt of 0.7° moves the camera's x, y 2.4 m
+    // from it. Without one, by the camera's x, y.
+    let judged = |r: &Row| r.ground_error.or(r.error);
+    let success = rows
+        .iter()
+        .filter(|r| judged(r).is_some_and(|e| e < 1.0))
+        .count();
     let wrong: Vec<&Row> = rows
         .iter()
-        .filter(|r| r.error.is_some_and(|e| e >= 1.0))
+        .filter(|r| judged(r).is_some_and(|e| e >= 1.0))
         .collect();
     let mut ms: Vec<f64> = rows.iter().map(|r| r.ms).collect();
     ms.sort_by(f64::total_cmp);
@@ -317,7 +325,7 @@ fn summarise(rows: &[Row]) -> (String, serde_json::Value) {
     let w_right = mean(
         &rows
             .iter()
-            .filter(|r| r.error.is_some_and(|e| e < 1.0))
+            .filter(|r| judged(r).is_some_and(|e| e < 1.0))
             .map(|r| r.confidence)
             .collect::<Vec<_>>(),
     );
@@ -340,11 +348,11 @@ fn summarise(rows: &[Row]) -> (String, serde_json::Value) {
             let _ = writeln!(s, "2-D error: no fix with ground truth");
         }
     }
-    // Fixes within 1 m only: the wrong ones are counted above.
+    // Fixes within 1 m only: the wrong ones are counted below.
     let ground: Vec<f64> = rows
         .iter()
-        .filter(|r| r.error.is_some_and(|e| e < 1.0))
         .filter_map(|r| r.ground_error)
+        .filter(|&e| e < 1.0)
         .collect();
     let ground_stats = Statistics::from_errors(&ground).ok();
     if let Some(st) = &ground_stats {
@@ -362,7 +370,7 @@ fn summarise(rows: &[Row]) -> (String, serde_json::Value) {
     };
     let _ = writeln!(
         s,
-        "success rate (< 1 m, failures count as misses): {rate:.3} ({success}/{n})"
+        "success rate (< 1 m from the point measured, failures count as misses): {rate:.3} ({success}/{n})"
     );
     let _ = writeln!(
         s,
