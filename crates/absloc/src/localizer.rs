@@ -111,8 +111,9 @@ pub struct AbsLocConfig {
     /// the strongest by detector score (0: all). Above about 130 m the frame resampled to a
     /// 25 cm map is sparser in keypoints than the map's tiles (at 200 m: 1024 over the
     /// 600-pixel view, about 1900 in the window over it), and LighterGlue's time grows with
-    /// both counts: 1.5 takes a fix at 200 m from 360 to 300 ms, 1.0 to 230 ms, with the
-    /// fixes' error 0.098 m → 0.105 / 0.113 m (`docs/absloc.md` §"A fix at 200 m"). Below
+    /// both counts: 1.5 takes a fix at 200 m from 380–430 ms to 275–300 ms with the fixes'
+    /// error unchanged on six fresh flights (0.093 m), 1.0 to about 230 ms but 0.102 m
+    /// (`docs/absloc.md` §"A fix at 200 m: the SSIM row by row, the window capped"). Below
     /// about 130 m the window holds fewer keypoints than the view and nothing changes.
     pub window_keypoints_over_view: f64,
     /// Tile feature cache on disk (see [`crate::cache`]). Off, every tile's features are

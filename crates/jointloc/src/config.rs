@@ -52,6 +52,18 @@ pub struct JointLocConfig {
     /// crater-easy-s101): 0.25 measured best of 0 / 0.25 / 0.5 / 1 / 2 (`docs/jointloc.md`
     /// §"Tilt").
     pub nadir_sigma_scale: f64,
+    /// The nadir pairs of the fixes in the alignment's window assume that the camera looks
+    /// down on average over **every tracked frame** within this many seconds of each fix,
+    /// not at the fix's own frame: each pair's camera is moved by the range × its frame's
+    /// optical axis off the mean axis of those frames (both through the alignment; the SLAM
+    /// knows these differences well over a few seconds, and the alignment's own tilt cancels
+    /// in them). With a fix every 10th frame (2 s) the attitude's wobble (periods of 1.5–8 s
+    /// in the simulator) sampled at the fixes alone aliases into slow errors that the window
+    /// does not average out: 0.63–1.08 m online at 200 m against 0.27–0.32 m at a fix every
+    /// 5th frame (`docs/jointloc.md` §"200 m at a fix every 10th frame"). Over the whole
+    /// window instead, the SLAM's own slow tilt drift entered the pairs. 0: off (each pair
+    /// assumes it at its own frame).
+    pub nadir_mean_window_s: f64,
     /// The nadir pairs put the camera where it looks at its fix from, at the camera's mean
     /// tilt off nadir as the fused attitudes show it, instead of straight above the fix: a
     /// body-fixed camera on a UAV pitched to cruise, or mounted off nadir, no longer pulls
@@ -220,6 +232,7 @@ impl Default for JointLocConfig {
             ransac_iterations: 200,
             nadir_weight: 0.3,
             nadir_sigma_scale: 0.25,
+            nadir_mean_window_s: 4.0,
             estimate_camera_tilt: true,
             camera_tilt_min_deg: 0.5,
             reference_altitude_m: 10.0,
@@ -343,6 +356,12 @@ impl JointLocConfig {
                 self.altitude_window_s,
                 true,
                 "must be finite and >= 0",
+            ),
+            (
+                "nadir_mean_window_s",
+                self.nadir_mean_window_s,
+                true,
+                "must be finite and >= 0 (0: off)",
             ),
             (
                 "altitude_plane_window_s",

@@ -10,7 +10,7 @@ use std::time::Instant;
 use jointloc_features::orb::{GrayImageView, OrbConfig, OrbExtractor};
 use jointloc_geometry::trajectory::Trajectory;
 use jointloc_geometry::{CameraToWorld, PinholeCamera, Sim3, WorldToCamera};
-use nalgebra::Isometry3;
+use nalgebra::{Isometry3, Vector3};
 use serde::{Deserialize, Serialize};
 
 use crate::cpu_time::{cpu_ms, thread_cpu_ns};
@@ -602,6 +602,25 @@ impl System {
             }
         }
         Ok(Trajectory::new(stamps, poses)?)
+    }
+
+    /// The optical axes (unit, SLAM frame) of the tracked frames from `since` on (timestamp
+    /// ≥ `since`), as [`System::trajectory`] poses them, oldest first. Reads the records from
+    /// the newest back, so a short span of a long flight costs only its own frames.
+    pub fn optical_axes_since(&self, since: f64) -> Vec<(f64, Vector3<f64>)> {
+        let mut axes: Vec<(f64, Vector3<f64>)> = self
+            .records
+            .iter()
+            .rev()
+            .take_while(|r| r.timestamp >= since)
+            .filter_map(|r| {
+                let kf = self.keyframe_pose(r.reference)?;
+                let t_cw = r.relative * kf.0;
+                Some((r.timestamp, t_cw.rotation.inverse() * Vector3::z()))
+            })
+            .collect();
+        axes.reverse();
+        axes
     }
 
     /// For each pose of [`System::trajectory`], the keyframe it is expressed through: its

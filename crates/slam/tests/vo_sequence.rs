@@ -122,6 +122,20 @@ fn end_to_end_sim3_ape_below_30cm_and_never_lost() {
         checked += 1;
     }
     assert!(checked >= 3, "{checked} keyframes among the saved frames");
+    // The optical axes of the frames since a time are those of the saved poses from it on.
+    let since = est.timestamps[est.len() / 2];
+    let axes = system.optical_axes_since(since);
+    let from = est.timestamps.iter().position(|&t| t >= since).unwrap();
+    assert_eq!(axes.len(), est.len() - from);
+    for ((t, a), (ts, pose)) in axes
+        .iter()
+        .zip(est.timestamps[from..].iter().zip(&est.poses[from..]))
+    {
+        assert_eq!(t, ts);
+        let expected = pose.0.rotation * nalgebra::Vector3::z();
+        assert!((a - expected).norm() < 1e-12 && (a.norm() - 1.0).abs() < 1e-12);
+    }
+    assert!(system.optical_axes_since(f64::INFINITY).is_empty());
 }
 
 #[test]
