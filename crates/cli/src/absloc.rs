@@ -399,3 +399,40 @@ fn summarise(rows: &[Row]) -> (String, serde_json::Value) {
     });
     (s, json)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn row(error: f64, ground_error: Option<f64>) -> Row {
+        Row {
+            fix: Some([0.0, 0.0]),
+            confidence: 0.5,
+            error: Some(error),
+            ground_error,
+            ms: 1.0,
+            searched: 1,
+        }
+    }
+
+    /// At altitude the camera's x, y is metres from the ground point a fix measures: a fix is
+    /// judged by the latter where the dataset has an elevation model, else by the former.
+    #[test]
+    fn fixes_are_judged_by_the_point_they_measure() {
+        let rows = [
+            row(2.4, Some(0.1)),
+            row(2.6, Some(0.2)),
+            row(0.3, Some(1.5)),
+            row(0.4, None),
+            row(1.2, None),
+        ];
+        let (text, json) = summarise(&rows);
+        // 0.1 and 0.2 from their ground points, 0.4 from the camera's x, y: right.
+        let rate = json["success_rate_1m"].as_f64().unwrap();
+        assert!((rate - 0.6).abs() < 1e-12, "{rate}: {text}");
+        // 1.5 from its ground point, 1.2 from the camera's x, y: wrong.
+        assert_eq!(json["wrong_fixes"], 2, "{text}");
+        let rmse = json["error_ground_point_2d_m"]["rmse"].as_f64().unwrap();
+        assert!((rmse - 0.025f64.sqrt()).abs() < 1e-12, "{rmse}: {text}");
+    }
+}
