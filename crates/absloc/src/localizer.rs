@@ -1524,7 +1524,7 @@ impl AbsLocalizer {
         let ratio = self.config.window_keypoints_over_view;
         if ratio > 0.0 {
             let cap = (ratio * view.features.len() as f64).ceil() as usize;
-            w.features = window::strongest(&w.features, cap);
+            w.features = window::strongest(std::mem::take(&mut w.features), cap);
         }
         *searched += 1;
         let c = match evaluate(

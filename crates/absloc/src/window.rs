@@ -114,17 +114,17 @@ pub(crate) fn gather(
 }
 
 /// The `max` strongest keypoints of `features` by detector score (the earlier on a tie), in
-/// their order; all of them when they are no more.
-pub(crate) fn strongest(features: &Features, max: usize) -> Features {
+/// their order; `features` as they are when they are no more.
+pub(crate) fn strongest(features: Features, max: usize) -> Features {
     if features.len() <= max {
-        return features.clone();
+        return features;
     }
     let score = |i: usize| features.scores.get(i).copied().unwrap_or(0.0);
     let mut order: Vec<usize> = (0..features.len()).collect();
     order.sort_by(|&a, &b| score(b).total_cmp(&score(a)).then(a.cmp(&b)));
     order.truncate(max);
     order.sort_unstable();
-    crate::candidate::select(features, &order)
+    crate::candidate::select(&features, &order)
 }
 
 #[cfg(test)]
@@ -227,16 +227,16 @@ mod tests {
             f.scores.push(s);
             f.descriptors.push(i as f32 * 10.0);
         }
-        let k = strongest(&f, 3);
+        let k = strongest(f.clone(), 3);
         // 0.9 (1), 0.9 (3), 0.7 (5): ties go to the earlier, the order is kept.
         assert_eq!(k.keypoints, vec![[1.0, 0.0], [3.0, 0.0], [5.0, 0.0]]);
         assert_eq!(k.scores, vec![0.9, 0.9, 0.7]);
         assert_eq!(k.descriptors, vec![10.0, 30.0, 50.0]);
-        let two = strongest(&f, 2);
+        let two = strongest(f.clone(), 2);
         assert_eq!(two.keypoints, vec![[1.0, 0.0], [3.0, 0.0]]);
-        assert_eq!(strongest(&f, 6).keypoints, f.keypoints);
-        assert_eq!(strongest(&f, 100).keypoints, f.keypoints);
-        assert!(strongest(&f, 0).is_empty());
+        assert_eq!(strongest(f.clone(), 6).keypoints, f.keypoints);
+        assert_eq!(strongest(f.clone(), 100).keypoints, f.keypoints);
+        assert!(strongest(f.clone(), 0).is_empty());
     }
 
     #[test]

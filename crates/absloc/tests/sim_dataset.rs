@@ -60,15 +60,30 @@ fn pipeline(matcher: &str) -> jointloc_absloc::FeaturePipeline {
     resolve(matcher, &opts).unwrap()
 }
 
-/// Localises frame `f` with no prior; panics, naming `what` and the frame, without a fix.
-fn localise(loc: &mut AbsLocalizer, f: &jointloc_formats::SequenceFrame, what: &str) -> Fix {
+/// Localises frame `f` with `prior`; panics, naming `what` and the frame, without a fix.
+fn localise(
+    loc: &mut AbsLocalizer,
+    f: &jointloc_formats::SequenceFrame,
+    prior: &Prior,
+    what: &str,
+) -> Fix {
     let img = image::open(&f.path).unwrap().into_luma8();
-    let out = loc
-        .localize(&img, f.altitude.unwrap(), &Prior::default())
-        .unwrap();
+    let out = loc.localize(&img, f.altitude.unwrap(), prior).unwrap();
     out.fix()
         .unwrap_or_else(|| panic!("{what}: {}: {out:?}", f.path.display()))
         .clone()
+}
+
+/// The true position and heading of frame `f`: an oracle standing in for the fused pose.
+fn true_prior(f: &jointloc_formats::SequenceFrame) -> Prior {
+    let truth = f.ground_truth.unwrap();
+    let c = truth.centre();
+    Prior {
+        position: Some([c.x, c.y]),
+        heading: Some(jointloc_absloc::heading_from_rotation(
+            &truth.rotation().to_rotation_matrix(),
+        )),
+    }
 }
 
 /// Localises every frame of the easy dataset with `matcher`; returns the 2-D errors.
@@ -93,7 +108,7 @@ fn run_on(dir: &std::path::Path, matcher: &str, upsample: f64) -> Vec<f64> {
         .frames
         .iter()
         .map(|f| {
-            let fix = localise(&mut loc, f, matcher);
+            let fix = localise(&mut loc, f, &Prior::default(), matcher);
             let c = f.ground_truth.unwrap().centre();
             // z = the map's elevation model under the fix + the altimeter: within the
             // altimeter's and the DEM's noise of the truth, on any terrain height.
@@ -167,7 +182,12 @@ fn a_shortlisted_whole_map_search_finds_the_exhaustive_fixes() {
         let mut n = 0;
         let mut at = Vec::new();
         for f in ds.frames.iter().step_by(4) {
-            let fix = localise(&mut loc, f, &format!("shortlist {candidates}"));
+            let fix = localise(
+                &mut loc,
+                f,
+                &Prior::default(),
+                &format!("shortlist {candidates}"),
+            );
             assert!(fix.global);
             let c = f.ground_truth.unwrap().centre();
             let err = ((fix.position[0] - c.x).powi(2) + (fix.position[1] - c.y).powi(2)).sqrt();
@@ -213,19 +233,8 @@ fn the_predicted_window_fixes_every_frame_from_one_call_on_a_coarse_map() {
         let mut loc = AbsLocalizer::new(tiles, ds.camera, pipeline, config).unwrap();
         let (mut sse, mut n, mut calls) = (0.0, 0usize, 0usize);
         for f in &ds.frames {
-            let truth = f.ground_truth.unwrap();
-            let c = truth.centre();
-            let prior = Prior {
-                position: Some([c.x, c.y]),
-                heading: Some(jointloc_absloc::heading_from_rotation(
-                    &truth.rotation().to_rotation_matrix(),
-                )),
-            };
-            let img = image::open(&f.path).unwrap().into_luma8();
-            let out = loc.localize(&img, f.altitude.unwrap(), &prior).unwrap();
-            let fix = out
-                .fix()
-                .unwrap_or_else(|| panic!("margin {margin}: {}: {out:?}", f.path.display()));
+            let c = f.ground_truth.unwrap().centre();
+            let fix = localise(&mut loc, f, &true_prior(f), &format!("margin {margin}"));
             if margin > 0.0 {
                 assert_eq!(fix.searched_tiles, 1, "{}", f.path.display());
                 assert!(!fix.global);
@@ -283,20 +292,8 @@ fn at_200_m_the_capped_window_fixes_every_frame_as_the_whole_window_does() {
             ds.frames
                 .iter()
                 .map(|f| {
-                    let truth = f.ground_truth.unwrap();
-                    let c = truth.centre();
-                    let prior = Prior {
-                        position: Some([c.x, c.y]),
-                        heading: Some(jointloc_absloc::heading_from_rotation(
-                            &truth.rotation().to_rotation_matrix(),
-                        )),
-                    };
-                    let img = image::open(&f.path).unwrap().into_luma8();
-                    let out = loc.localize(&img, f.altitude.unwrap(), &prior).unwrap();
-                    let fix = out
-                        .fix()
-                        .unwrap_or_else(|| panic!("ratio {ratio}: {}: {out:?}", f.path.display()))
-                        .clone();
+                    let c = f.ground_truth.unwrap().centre();
+                    let fix = localise(&mut loc, f, &true_prior(f), &format!("ratio {ratio}"));
                     assert_eq!(fix.searched_tiles, 1, "ratio {ratio}: one matcher call");
                     let err = (fix.position[0] - c.x).hypot(fix.position[1] - c.y);
                     assert!(err < 0.5, "ratio {ratio}: {}: {err} m", f.path.display());

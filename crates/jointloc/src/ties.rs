@@ -120,7 +120,7 @@ impl JointLoc {
             n => self.ties.len().saturating_sub(n),
         };
         if let (true, Some(previous)) = (
-            self.config.estimate_camera_tilt || self.config.nadir_mean_window_s > 0.0,
+            self.places_nadir_cameras(),
             self.alignment.as_ref().map(|a| a.sim3),
         ) {
             self.place_nadir_cameras(&previous, first);
@@ -139,7 +139,7 @@ impl JointLoc {
         if self.config.estimate_camera_tilt {
             self.estimate_camera_tilt(&s, &fitted.inlier_fixes);
         }
-        if self.config.estimate_camera_tilt || self.config.nadir_mean_window_s > 0.0 {
+        if self.places_nadir_cameras() {
             self.place_nadir_cameras(&s, first);
         }
         // Global factors per keyframe, one pair per inlier fix tied to it: the fix's ground
@@ -346,6 +346,12 @@ impl JointLoc {
         }
     }
 
+    /// Whether the nadir pairs are placed at each refit (else each stays straight above its
+    /// fix): for the camera's tilt, or for the wobble's mean over frames.
+    fn places_nadir_cameras(&self) -> bool {
+        self.config.estimate_camera_tilt || self.config.nadir_mean_window_s > 0.0
+    }
+
     /// Each tie's nadir pair: the camera where it looks at the fix from, the altimeter's range
     /// away along its optical axis at its heading (through `s`) and the estimated tilt; for
     /// the ties of the window (from `first`), with
@@ -359,32 +365,26 @@ impl JointLoc {
         // degrees from one refit to the next, and the pairs placed through it went along
         // (crater s5202 at 200 m: 3.2 m online in the first 30 s, against 1.5 m without).
         let full = self.ties.len().saturating_sub(first) >= self.alignment_window_fixes();
-        let around = if half > 0.0 && full {
-            self.ties.get(first).map(|t| {
-                self.slam
-                    .optical_axes_since(self.fixes[t.record].timestamp - half)
-            })
-        } else {
-            None
-        };
-        // Prefix sums of the axes through `s`: the mean over any span in two lookups.
-        let (times, sums) = match &around {
-            Some(axes) => {
-                let mut sums = Vec::with_capacity(axes.len() + 1);
-                sums.push(Vector3::zeros());
-                for (_, a) in axes {
-                    let last = sums[sums.len() - 1];
-                    sums.push(last + s.rotation * a);
+        // The window's frames: their times and the prefix sums of their axes through `s` (the
+        // mean over any span in two lookups).
+        let around: Option<(Vec<f64>, Vec<Vector3<f64>>)> = (half > 0.0 && full)
+            .then(|| self.ties.get(first))
+            .flatten()
+            .map(|t| {
+                let axes = self
+                    .slam
+                    .optical_axes_since(self.fixes[t.record].timestamp - half);
+                let mut sums = vec![Vector3::zeros()];
+                for (_, a) in &axes {
+                    sums.push(sums[sums.len() - 1] + s.rotation * a);
                 }
-                (axes.iter().map(|(t, _)| *t).collect::<Vec<f64>>(), sums)
-            }
-            None => (Vec::new(), Vec::new()),
-        };
+                (axes.iter().map(|(t, _)| *t).collect(), sums)
+            });
         let start = if around.is_some() { first } else { 0 };
         for i in start..self.ties.len() {
             let t = &self.ties[i];
             let at = self.fixes[t.record].timestamp;
-            let mean = around.as_ref().and_then(|_| {
+            let mean = around.as_ref().and_then(|(times, sums)| {
                 let lo = times.partition_point(|&x| x < at - half);
                 let hi = times.partition_point(|&x| x <= at + half);
                 (hi > lo + 1)
