@@ -58,7 +58,8 @@ pub struct Args {
     #[arg(long, value_name = "START:DURATION")]
     blind: Option<String>,
     /// World x, y (metres, map frame) of the take-off, if known: the first search starts there
-    /// instead of searching the whole map.
+    /// instead of searching the whole map, and every alignment of the first map must put the
+    /// take-off within `start_radius_m` (5 m; `--config`) plus allowances of it.
     #[arg(long, value_name = "X,Y")]
     start: Option<String>,
     /// Settings (TOML, `JointLocConfig` with [slam] and [absloc] tables; fields left out keep

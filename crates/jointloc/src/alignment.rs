@@ -69,6 +69,22 @@ pub fn fit(
     seed: u64,
     robust_floor_m: f64,
 ) -> Option<SlamToWorld> {
+    fit_admissible(pairs, iterations, min_fixes, seed, robust_floor_m, &|_| {
+        true
+    })
+}
+
+/// [`fit`] among the similarities that `admissible` accepts (an outside check such as the
+/// take-off position): a hypothesis it refuses scores nothing, and a refined fit it refuses
+/// gives `None`.
+pub fn fit_admissible(
+    pairs: &[Correspondence],
+    iterations: usize,
+    min_fixes: usize,
+    seed: u64,
+    robust_floor_m: f64,
+    admissible: &dyn Fn(&Sim3) -> bool,
+) -> Option<SlamToWorld> {
     let n_fixes = pairs.iter().map(|c| c.fix + 1).max().unwrap_or(0);
     if pairs.len() < 3 || n_fixes < 2 {
         return None;
@@ -102,7 +118,7 @@ pub fn fit(
             hypotheses.push(s);
         }
     }
-    for s in &hypotheses {
+    for s in hypotheses.iter().filter(|s| admissible(s)) {
         let ok = inliers_of(s);
         let sc = score(&ok);
         if best.as_ref().is_none_or(|(b, _)| sc > *b) {
@@ -124,6 +140,9 @@ pub fn fit(
     }
     if robust_floor_m > 0.0 {
         sim3 = robust_refit(pairs, &ok, sim3, robust_floor_m);
+    }
+    if !admissible(&sim3) {
+        return None;
     }
     let (mut num, mut den) = (0.0, 0.0);
     for c in pairs.iter().filter(|c| ok[c.fix]) {
@@ -258,6 +277,47 @@ mod tests {
             }
         }
         (out, wrong)
+    }
+
+    /// A consistent chain of wrong fixes that outnumbers the right ones (the track turned
+    /// half a turn about a point 10 m off): plain RANSAC takes the chain; an admissibility
+    /// check on where a similarity puts one known point (the take-off) takes the right fixes.
+    #[test]
+    fn an_admissibility_check_refuses_a_consistent_chain_of_wrong_fixes() {
+        let s = truth();
+        let inv = s.inverse();
+        let turned = UnitQuaternion::from_euler_angles(0.0, 0.0, std::f64::consts::PI);
+        let pivot = Point3::new(8.0, 6.0, 10.0);
+        let mut pairs = Vec::new();
+        for f in 0..14 {
+            let t = f as f64 * 2.0;
+            let world = Point3::new(t, 0.02 * t * t, 10.0);
+            let wrong = f < 9;
+            let reported = if wrong {
+                pivot + turned * (world - Point3::new(0.0, 0.0, 10.0))
+            } else {
+                world
+            };
+            pairs.push(Correspondence {
+                slam: inv.transform_point(&world),
+                world: reported,
+                weight: 0.5,
+                fix: f,
+                tolerance: Tolerance::sphere(2.0),
+            });
+        }
+        let takeoff_slam = inv.transform_point(&Point3::new(0.0, 0.0, 10.0));
+        let near_takeoff = |c: &Sim3| {
+            (c.transform_point(&takeoff_slam) - Point3::new(0.0, 0.0, 10.0)).norm() < 3.0
+        };
+        let plain = fit(&pairs, 200, 3, 1, 0.0).expect("fit");
+        assert_eq!(plain.inlier_fixes, (0..9).collect::<Vec<_>>());
+        assert!(!near_takeoff(&plain.sim3));
+        let checked = fit_admissible(&pairs, 200, 3, 1, 0.0, &near_takeoff).expect("fit");
+        assert_eq!(checked.inlier_fixes, (9..14).collect::<Vec<_>>());
+        assert!(checked.sim3.rotation.angle_to(&s.rotation) < 1e-6);
+        // Nothing admissible: no alignment.
+        assert_eq!(fit_admissible(&pairs, 200, 3, 1, 0.0, &|_| false), None);
     }
 
     #[test]

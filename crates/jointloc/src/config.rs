@@ -125,6 +125,18 @@ pub struct JointLocConfig {
     /// absolute search starts from the tiles nearest to it instead of the whole map (a
     /// whole-map search with 8 rotation hypotheses takes seconds). `None`: whole map.
     pub start_position: Option<[f64; 2]>,
+    /// How far the SLAM's take-off may lie from `start_position`, metres: the take-off's own
+    /// uncertainty. With `start_position`, every alignment of the flight's first map, and a
+    /// one-fix similarity that steers the searches before the first, must put the SLAM's
+    /// take-off (its first tracked frame carried back to the flight's first frame) within
+    /// this of it, plus allowances for the carrying back, the range and `start_drift`
+    /// (`crate::takeoff`; 0: no such check). Under a sun reversed from the map's, fixes with
+    /// the view turned half a turn agreed with each other and put the output 33–69 m off on
+    /// 10 m flights (`docs/jointloc.md` §"The take-off checks the first alignment").
+    pub start_radius_m: f64,
+    /// See `start_radius_m`: the SLAM's drift as a fraction of the distance from the
+    /// take-off (a few per cent over the first minutes of a monocular SLAM).
+    pub start_drift: f64,
     /// Before the alignment exists, every this-many-th absolute search of a failing streak
     /// goes without a heading, so the localiser sweeps rotations (0: never give it a heading).
     /// The heading then comes from one fix, which may be wrong, and with it every search would
@@ -243,6 +255,8 @@ impl Default for JointLocConfig {
             altitude_tilt_sigma_deg: 0.2,
             final_altitude_window_s: 30.0,
             start_position: None,
+            start_radius_m: 5.0,
+            start_drift: 0.05,
             sweep_after_failures: 2,
             sweep_after_failing_s: 20.0,
             blind_retry_max_s: 5.0,
@@ -446,6 +460,18 @@ impl JointLocConfig {
                 self.unconfirmed_weak_alignment_s,
                 true,
                 "must be finite and >= 0 (0: never)",
+            ),
+            (
+                "start_radius_m",
+                self.start_radius_m,
+                true,
+                "must be finite and >= 0 (0: no check)",
+            ),
+            (
+                "start_drift",
+                self.start_drift,
+                true,
+                "must be finite and >= 0",
             ),
             (
                 "max_altitude_rate_mps",

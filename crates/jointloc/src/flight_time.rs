@@ -19,6 +19,11 @@ pub(crate) struct FrameClock {
 }
 
 impl FrameClock {
+    /// Time of the flight's first frame (with a finite timestamp).
+    pub(crate) fn first_timestamp(&self) -> Option<f64> {
+        self.first.map(|(_, t)| t)
+    }
+
     /// Frame `index` (counted from the flight's first) was taken at `timestamp`.
     pub(crate) fn tick(&mut self, index: usize, timestamp: f64) {
         if !timestamp.is_finite() {

@@ -55,6 +55,7 @@ pub mod observer;
 pub mod outputs;
 mod records;
 pub mod system;
+mod takeoff;
 pub mod terrain_shift;
 mod ties;
 pub mod virtual_frames;

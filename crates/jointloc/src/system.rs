@@ -33,6 +33,7 @@ use crate::fix_source::{FixRequest, FixSource, Located};
 use crate::map_merge::Mergeable;
 use crate::observer::Observer;
 pub use crate::records::{FixRecord, FusedFrame, FusionTiming};
+use crate::takeoff::TakeOff;
 use crate::terrain_shift::TerrainCorrection;
 use crate::ties::Tie;
 use crate::virtual_frames::VirtualFrames;
@@ -130,6 +131,9 @@ pub struct JointLoc {
     pub(crate) maps_merged: usize,
     /// Recent frames for fixes from more than one frame.
     pub(crate) virtual_frames: VirtualFrames,
+    /// With a take-off position: where the first tracked frame of the first map is (see
+    /// [`JointLocConfig::start_radius_m`]); gone with that map.
+    pub(crate) takeoff: Option<TakeOff>,
 }
 
 impl std::fmt::Debug for JointLoc {
@@ -219,6 +223,7 @@ impl JointLoc {
             last_world_pose: None,
             ground_track: GroundTrack::default(),
             first_world_timestamp: None,
+            takeoff: None,
             lost_since: None,
             earlier_maps: Vec::new(),
             loops_closed: 0,
@@ -360,6 +365,7 @@ impl JointLoc {
             .process(GrayImageView::from(image), timestamp, altitude)?;
         self.loops_closed += usize::from(r.loop_closed.is_some());
         self.start_new_map_if_lost_for_good(r.state, timestamp)?;
+        self.anchor_takeoff(r.pose.as_ref(), timestamp, altitude);
         let mut absolute = Vec::new();
         let (scale, up) = match &self.alignment {
             Some(a) => (a.sim3.scale, Some(a.sim3.rotation.inverse() * Vector3::z())),
@@ -608,6 +614,7 @@ impl JointLoc {
         });
         self.alignment = None;
         self.forget_provisional();
+        self.takeoff = None;
         self.first_world_timestamp = None;
         self.altitude.clear();
         self.lost_since = None;
@@ -670,19 +677,29 @@ impl JointLoc {
         {
             let rotation = fix.orientation() * pose.rotation().inverse();
             let centre = nalgebra::Vector3::from(fix.position);
-            tracing::debug!(
-                frame = submitted.frame,
-                fix_heading = fix.heading,
-                slam_rotation = ?pose.rotation().euler_angles(),
-                "provisional similarity from a fix"
-            );
-            self.provisional_heading_agrees = self.heading_agrees(&rotation);
-            self.provisional = Some(Sim3 {
+            let one_fix = Sim3 {
                 scale: 1.0,
                 rotation,
                 translation: centre - rotation * pose.centre().coords,
-            });
-            self.provisional_strong = fix.confidence >= self.config.strong_fix_confidence;
+            };
+            self.refresh_takeoff();
+            if self.takeoff_agrees(&one_fix, &[pose.centre()]) {
+                tracing::debug!(
+                    frame = submitted.frame,
+                    fix_heading = fix.heading,
+                    slam_rotation = ?pose.rotation().euler_angles(),
+                    "provisional similarity from a fix"
+                );
+                self.provisional_heading_agrees = self.heading_agrees(&rotation);
+                self.provisional = Some(one_fix);
+                self.provisional_strong = fix.confidence >= self.config.strong_fix_confidence;
+            } else {
+                tracing::debug!(
+                    frame = submitted.frame,
+                    confidence = fix.confidence,
+                    "a fix that puts the take-off too far from the given position leaves the search prior"
+                );
+            }
         }
         self.fixes.push(FixRecord {
             frame: submitted.frame,
@@ -746,6 +763,77 @@ impl JointLoc {
             );
         }
         off <= bound
+    }
+
+    /// Anchors the take-off at the first tracked frame of the flight's first map, when a
+    /// take-off position is given (see [`JointLocConfig::start_radius_m`]), and then the
+    /// frame a second later that gives the velocity to carry it back to the first frame.
+    fn anchor_takeoff(
+        &mut self,
+        pose: Option<&CameraToWorld>,
+        timestamp: f64,
+        altitude: Option<f64>,
+    ) {
+        if self.config.start_position.is_none()
+            || self.config.start_radius_m <= 0.0
+            || self.slam.maps_started() > 0
+        {
+            return;
+        }
+        let (Some(pose), Some(kf), Some(first_frame_s)) = (
+            pose,
+            self.slam.map().last_keyframe(),
+            self.clock.first_timestamp(),
+        ) else {
+            return;
+        };
+        match &mut self.takeoff {
+            None if self.alignment.is_none() => {
+                self.takeoff = Some(TakeOff::new(
+                    first_frame_s,
+                    timestamp,
+                    altitude.unwrap_or(0.0),
+                    kf.id,
+                    &kf.pose.0,
+                    pose.centre(),
+                ));
+            }
+            Some(t) if t.needs_later() => t.observe(timestamp, kf.id, &kf.pose.0, pose.centre()),
+            _ => {}
+        }
+    }
+
+    /// The take-off anchor from its keyframes' current poses.
+    pub(crate) fn refresh_takeoff(&mut self) {
+        if let Some(t) = &mut self.takeoff {
+            t.refresh(self.slam.map());
+        }
+    }
+
+    /// Whether `s` (SLAM → world) puts the take-off within [`JointLocConfig::start_radius_m`]
+    /// (and the allowances of [`crate::takeoff::tolerance_m`], the distance taken to the
+    /// farthest of the fixes' SLAM camera centres `fix_cameras`) of the take-off position;
+    /// true without a take-off or before it is known.
+    pub(crate) fn takeoff_agrees(&self, s: &Sim3, fix_cameras: &[Point3<f64>]) -> bool {
+        let (Some(takeoff), Some(start)) = (&self.takeoff, self.config.start_position) else {
+            return true;
+        };
+        let Some((at, carried)) = takeoff.slam() else {
+            return true;
+        };
+        let distance = fix_cameras
+            .iter()
+            .map(|p| (p - at).norm() * s.scale)
+            .fold(0.0, f64::max);
+        let miss = crate::takeoff::miss_m(s, &at, start);
+        let tolerance = crate::takeoff::tolerance_m(
+            self.config.start_radius_m,
+            carried * s.scale,
+            takeoff.range_m(),
+            self.config.start_drift,
+            distance,
+        );
+        miss <= tolerance
     }
 
     /// No provisional similarity: the next searches before the alignment start from the

@@ -115,6 +115,7 @@ impl JointLoc {
         for t in &mut self.ties {
             t.refresh(map, self.fixes[t.record].timestamp);
         }
+        self.refresh_takeoff();
         let first = match self.alignment_window_fixes() {
             0 => 0,
             n => self.ties.len().saturating_sub(n),
@@ -428,7 +429,7 @@ impl JointLoc {
     ) -> Option<SlamToWorld> {
         let mut pairs = Vec::with_capacity(2 * range.len());
         let threshold = self.config.inlier_threshold_m;
-        for i in range {
+        for i in range.clone() {
             let t = &ties[i];
             let loose = self.config.range_looseness(t.altitude);
             // The ground pair first: the robust refit reads a fix's residual from it.
@@ -450,12 +451,17 @@ impl JointLoc {
                 tolerance: Tolerance::sphere(threshold * loose),
             });
         }
-        alignment::fit(
+        // On the flight's first map every alignment must agree with the take-off position, if
+        // one is given: a refit may otherwise move to a consensus of wrong fixes that the
+        // first alignment was kept from.
+        let cameras: Vec<Point3<f64>> = ties[range.clone()].iter().map(|t| t.slam_camera).collect();
+        alignment::fit_admissible(
             &pairs,
             self.config.ransac_iterations,
             self.config.min_fixes,
             self.config.seed,
             self.config.alignment_robust_floor_m,
+            &|s| self.takeoff_agrees(s, &cameras),
         )
     }
 }
