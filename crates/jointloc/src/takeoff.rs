@@ -38,6 +38,22 @@ struct Anchor {
 }
 
 impl Anchor {
+    /// A frame's SLAM centre `centre` at `timestamp`, tied to `keyframe` (world-to-camera
+    /// pose `t_cw`).
+    fn new(
+        timestamp: f64,
+        keyframe: KeyFrameId,
+        t_cw: &Isometry3<f64>,
+        centre: Point3<f64>,
+    ) -> Self {
+        Self {
+            keyframe,
+            centre_in_kf: t_cw.transform_point(&centre),
+            slam: centre,
+            timestamp,
+        }
+    }
+
     fn refresh(&mut self, map: &Map) {
         if map.keyframe(self.keyframe).is_none()
             && let Some(kf) = map
@@ -81,12 +97,7 @@ impl TakeOff {
         Self {
             first_frame_s,
             range_m,
-            first: Anchor {
-                keyframe,
-                centre_in_kf: t_cw.transform_point(&centre),
-                slam: centre,
-                timestamp,
-            },
+            first: Anchor::new(timestamp, keyframe, t_cw, centre),
             later: None,
         }
     }
@@ -101,12 +112,7 @@ impl TakeOff {
         centre: Point3<f64>,
     ) {
         if self.later.is_none() && timestamp - self.first.timestamp >= VELOCITY_SPAN_S {
-            self.later = Some(Anchor {
-                keyframe,
-                centre_in_kf: t_cw.transform_point(&centre),
-                slam: centre,
-                timestamp,
-            });
+            self.later = Some(Anchor::new(timestamp, keyframe, t_cw, centre));
         }
     }
 

@@ -6,7 +6,7 @@ mod common;
 use std::sync::{Arc, Mutex, OnceLock};
 
 use common::{
-    TruthFixes, builder, flight, frames, ground_truth, no_match, online, pose_at, rmse,
+    TruthFixes, builder, flight, found_fix, frames, ground_truth, no_match, online, pose_at, rmse,
     tilted_flight,
 };
 use jointloc_formats::outputs::{read_fixes, read_online_tum};
@@ -182,10 +182,7 @@ impl jointloc_system::FixSource for WrongPlaceNearPrior {
             }
             _ => false,
         };
-        if let Some(jointloc_system::Located {
-            outcome: jointloc_absloc::Outcome::Fix(fix),
-            ..
-        }) = located.as_mut()
+        if let Some(fix) = found_fix(&mut located)
             && (self.requests == 3 || far_prior)
         {
             fix.position[0] += 30.0;
@@ -238,10 +235,7 @@ impl jointloc_system::FixSource for TurnedChain {
     ) -> Result<Option<jointloc_system::Located>, jointloc_absloc::AbslocError> {
         self.requests += 1;
         let mut located = self.truth.localize(request)?;
-        if let Some(jointloc_system::Located {
-            outcome: jointloc_absloc::Outcome::Fix(fix),
-            ..
-        }) = located.as_mut()
+        if let Some(fix) = found_fix(&mut located)
             && self.requests <= self.turned
         {
             let [x, y, _] = fix.position;
@@ -321,10 +315,7 @@ impl jointloc_system::FixSource for HeadingFlip {
             .unwrap()
             .push((request.timestamp, request.prior.heading));
         let mut located = self.truth.localize(request)?;
-        if let Some(jointloc_system::Located {
-            outcome: jointloc_absloc::Outcome::Fix(fix),
-            ..
-        }) = located.as_mut()
+        if let Some(fix) = found_fix(&mut located)
             && self.requests == self.flip_at
         {
             fix.heading += 167f64.to_radians();

@@ -141,6 +141,14 @@ impl FixSource for TruthFixes {
     }
 }
 
+/// The fix of a search that found one, to edit in a scripted source.
+pub fn found_fix(located: &mut Option<Located>) -> Option<&mut Fix> {
+    match located.as_mut()?.outcome {
+        Outcome::Fix(ref mut fix) => Some(fix),
+        _ => None,
+    }
+}
+
 /// The builder for the test flight with fixes from its ground truth.
 pub fn builder(
     dir: &Path,
