@@ -7,6 +7,7 @@ use std::path::Path;
 use anyhow::{Context, bail};
 use jointloc_eval::{AlignMode, EvalConfig, Statistics, evaluate};
 use jointloc_formats::outputs::read_fixes;
+use jointloc_formats::outputs::summary::{Summary, read_json};
 use jointloc_geometry::CameraToWorld;
 use jointloc_geometry::trajectory::Trajectory;
 use nalgebra::{Isometry3, Quaternion, Translation3, UnitQuaternion};
@@ -117,6 +118,29 @@ pub struct Ape {
     pub aligned_xy: Vec<(f64, f64)>,
 }
 
+/// Why a run wrote no world pose, from the `summary.json` beside its trajectory: how many
+/// searches found a fix, and for a threaded run the hint that matters there.
+fn why_no_world_pose(estimate: &Path) -> String {
+    let summary = estimate
+        .parent()
+        .map(|d| d.join("summary.json"))
+        .and_then(|p| read_json::<Summary>(&p).ok());
+    let Some(s) = summary else {
+        return "no fix came back before the last frame".into();
+    };
+    let mut why = format!(
+        "{} of {} absolute searches found a fix, {} used ({})",
+        s.fixes_found, s.absolute_attempts, s.fixes_used, s.mode
+    );
+    if s.mode != "sequential" && s.fixes_found == 0 {
+        why.push_str(
+            "; threaded, the first whole-map search can outlast a short flight: \
+             `jointloc run --start X,Y` starts it at the take-off position",
+        );
+    }
+    why
+}
+
 /// APE translation of `estimate` against `gt` with `align`; `xy_only` drops z first (for
 /// 2-DoF absolute fixes).
 pub fn ape(
@@ -128,10 +152,9 @@ pub fn ape(
     let mut est = read_tum_prefix(estimate)?;
     if est.timestamps.is_empty() {
         anyhow::bail!(
-            "no world-frame pose in {}: no fix came back before the last frame (threaded, \
-             the first whole-map search can outlast a short flight; `jointloc run --start X,Y` \
-             starts it at the take-off position)",
-            estimate.display()
+            "no world-frame pose in {}: {}",
+            estimate.display(),
+            why_no_world_pose(estimate)
         );
     }
     let mut reference = gt.clone();

@@ -236,6 +236,12 @@ impl Plan {
 }
 
 pub(super) fn plan_summary(p: &Plan) -> String {
+    // The envelope's flights are the HiRISE-class preset whatever `--difficulties` says.
+    let difficulty = match (p.wants("envelope"), p.tables.len()) {
+        (true, 1) => "mars (the envelope's preset)".to_string(),
+        (true, _) => format!("{} (envelope: mars)", p.difficulties.join(", ")),
+        _ => p.difficulties.join(", "),
+    };
     format!(
         "{}: terrains {}, difficulty {}, seeds {:?}, {} m flights, {} pairs per dataset, JointLoc/absolute matcher {}",
         if p.quick {
@@ -244,7 +250,7 @@ pub(super) fn plan_summary(p: &Plan) -> String {
             "full protocol"
         },
         p.terrains.join(", "),
-        p.difficulties.join(", "),
+        difficulty,
         p.seeds,
         p.length_m,
         p.pairs,
