@@ -175,7 +175,7 @@ fn envelope_table_flies_the_hirise_class_preset() {
     );
     let md = std::fs::read_to_string(out.join("report.md")).unwrap();
     assert!(md.contains("## 8. The Mars envelope"), "{md}");
-    assert!(md.contains("| 30 | 0 | 1 |"), "{md}");
+    assert!(md.contains("| 30 | 0 | crater | 1 |"), "{md}");
     assert!(md.contains("--difficulty mars --altitude 30"), "{md}");
     // The other tables were not asked for: no dataset of theirs was made.
     assert!(md.contains("## 2. Visual localisation (paper Table VI)\n\nNot run."));
