@@ -11,6 +11,7 @@ azimuth clockwise from north), L = 1 / tan(elevation) the length of a unit-heigh
 f the flight's sun and m the map's (`[scene.uav_sun]`, `[scene.satellite_sun]` of
 `map.toml`). Prints the bias, the angle between it and the model's direction, the fitted
 c (metres per unit of the model) and the residual's share of the bias.
+Needs numpy (`python3 -m venv v && v/bin/pip install numpy`).
 """
 import math
 import re
