@@ -30,6 +30,7 @@ pub mod mosaic;
 pub mod orb;
 pub mod pipeline;
 pub mod registry;
+pub mod relight;
 pub mod search;
 pub mod shortlist;
 pub mod ssim;

@@ -27,6 +27,7 @@ use crate::confidence::{ConfidenceMode, RADIUS_RANGE, search_radius};
 use crate::correlate::{CorrelationConfig, Grid, NoPeak, correlate};
 use crate::error::{AbslocError, Result};
 use crate::pipeline::FeaturePipeline;
+use crate::relight::{RelightConfig, relit_tiles};
 use crate::search::{self, SearchInput};
 use crate::shortlist::{ShortlistConfig, TileIndex};
 use crate::ssim::{SsimConfig, ssim_masked};
@@ -116,6 +117,8 @@ pub struct AbsLocConfig {
     /// (`docs/absloc.md` §"A fix at 200 m: the SSIM row by row, the window capped"). Below
     /// about 130 m the window holds fewer keypoints than the view and nothing changes.
     pub window_keypoints_over_view: f64,
+    /// The map relit to the flight's sun with its elevation model (see [`crate::relight`]).
+    pub relight: RelightConfig,
     /// Tile feature cache on disk (see [`crate::cache`]). Off, every tile's features are
     /// extracted at the first search that needs them and all kept in memory.
     pub cache: bool,
@@ -171,6 +174,7 @@ impl Default for AbsLocConfig {
             correlation: CorrelationConfig::default(),
             shortlist: ShortlistConfig::default(),
             coarse_places_first: true,
+            relight: RelightConfig::default(),
         }
     }
 }
@@ -183,6 +187,7 @@ impl AbsLocConfig {
             value,
             reason: reason.into(),
         };
+        self.relight.validate()?;
         if !(self.min_match_scale.is_finite() && self.min_match_scale > 0.0) {
             return Err(bad(
                 "min_match_scale",
@@ -442,6 +447,20 @@ impl AbsLocalizer {
     ) -> Result<Self> {
         config.validate()?;
         tiles.check_frame_size(camera.width, camera.height)?;
+        let t = Instant::now();
+        let tiles = match relit_tiles(&tiles, &config.relight)? {
+            Ok(relit) => {
+                tracing::info!(
+                    seconds = t.elapsed().as_secs_f64(),
+                    "map relit to the flight's sun"
+                );
+                relit
+            }
+            Err(why) => {
+                tracing::info!(%why, "map matched as it was taken");
+                tiles
+            }
+        };
         if !(camera.fx.is_finite() && camera.fx > 0.0 && camera.fy.is_finite() && camera.fy > 0.0) {
             return Err(AbslocError::InvalidConfig {
                 field: "camera",

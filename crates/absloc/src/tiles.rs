@@ -11,6 +11,7 @@
 use std::path::{Path, PathBuf};
 
 use image::GrayImage;
+use jointloc_formats::map_toml::SunInfo;
 use jointloc_formats::{ElevationModel, MapInfo};
 
 use crate::error::{AbslocError, Result, read_gray};
@@ -43,6 +44,8 @@ pub struct MapTiles {
     fingerprint: u64,
     /// The terrain elevation model of `map.toml`'s `[elevation]`, if any.
     ground: Ground,
+    /// The sun the map was taken under, if known.
+    sun: Option<SunInfo>,
 }
 
 impl MapTiles {
@@ -138,6 +141,7 @@ impl MapTiles {
             root,
         )?;
         out.ground = Ground(elevation);
+        out.sun = info.acquisition_sun();
         Ok(out)
     }
 
@@ -264,6 +268,7 @@ impl MapTiles {
             root: root.to_path_buf(),
             fingerprint,
             ground: Ground::default(),
+            sun: None,
         })
     }
 
@@ -306,7 +311,54 @@ impl MapTiles {
             &self.root,
         )?;
         out.ground = self.ground.clone();
+        out.sun = self.sun;
         Ok(out)
+    }
+
+    /// The same map and tiling with other pixels (a relit map): its fingerprint, and so its
+    /// tile feature cache, changes with them.
+    pub fn with_pixels(&self, map: GrayImage) -> Result<Self> {
+        if map.dimensions() != self.map.dimensions() {
+            return Err(AbslocError::InvalidConfig {
+                field: "map pixels",
+                value: format!("{}x{}", map.width(), map.height()),
+                reason: format!(
+                    "must keep the map's size {}x{}",
+                    self.map.width(),
+                    self.map.height()
+                ),
+            });
+        }
+        let fingerprint = fingerprint(
+            &map,
+            self.gsd_m,
+            &self.tiles,
+            (self.tile_width, self.tile_height),
+        );
+        Ok(Self {
+            map,
+            gsd_m: self.gsd_m,
+            tile_width: self.tile_width,
+            tile_height: self.tile_height,
+            cols: self.cols,
+            rows: self.rows,
+            tiles: self.tiles.clone(),
+            root: self.root.clone(),
+            fingerprint,
+            ground: self.ground.clone(),
+            sun: self.sun,
+        })
+    }
+
+    /// The sun the map was taken under (`map.toml`'s `[sun]`), if known.
+    pub fn sun(&self) -> Option<SunInfo> {
+        self.sun
+    }
+
+    /// The map with its sun set (maps read from images or tile folders know none).
+    pub fn with_sun(mut self, sun: Option<SunInfo>) -> Self {
+        self.sun = sun;
+        self
     }
 
     /// Terrain height at world `(x, y)` from the map's elevation model; 0 (flat ground at the
@@ -541,6 +593,11 @@ impl Ground {
     /// Height at world `(x, y)`, metres.
     pub fn height_at(&self, x: f64, y: f64) -> f64 {
         self.0.as_ref().map_or(0.0, |e| e.height_at(x, y))
+    }
+
+    /// The elevation model, if any.
+    pub fn model(&self) -> Option<&ElevationModel> {
+        self.0.as_ref()
     }
 
     /// Whether this is an elevation model (not the flat-ground fallback).

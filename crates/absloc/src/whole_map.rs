@@ -249,7 +249,7 @@ impl CoarseMap {
 
 /// `src` (`h` rows of `w`) into `dst` (`w` rows of `h`), in blocks of 32 × 32 so that both
 /// sides are read and written a cache line at a time.
-fn transpose(src: &[Complex32], dst: &mut [Complex32], w: usize, h: usize) {
+pub(crate) fn transpose(src: &[Complex32], dst: &mut [Complex32], w: usize, h: usize) {
     const B: usize = 32;
     dst.par_chunks_mut(h * B).enumerate().for_each(|(bx, out)| {
         let x0 = bx * B;
@@ -268,7 +268,7 @@ fn transpose(src: &[Complex32], dst: &mut [Complex32], w: usize, h: usize) {
 /// The smallest n ≥ `len` whose prime factors are 2, 3 and 5 (fast FFT sizes). No padding
 /// beyond the map is needed: a placement that keeps the view inside the map never reaches
 /// past its edge, so the circular correlation does not wrap there.
-fn smooth_size(len: usize) -> usize {
+pub(crate) fn smooth_size(len: usize) -> usize {
     (len.max(1)..)
         .find(|&n| {
             let mut m = n;

@@ -14,6 +14,7 @@ use image::GrayImage;
 use jointloc_absloc::candidate::{
     AcceptConfig, Candidate, MatchContext, QueryView, evaluate, matched_points,
 };
+use jointloc_absloc::relight::{NotRelit, RelightConfig, relit_tiles};
 use jointloc_absloc::tiles::{MapTile, MapTiles};
 use jointloc_absloc::{AbsLocConfig, AbslocError, FeaturePipeline, Result};
 use jointloc_features::Features;
@@ -324,17 +325,27 @@ pub fn summarise(matcher: &str, fit: HomographyFit, results: Vec<PairResult>) ->
 /// homography from ground truth (`terrain` heights when given, else the altimeter plane).
 /// `normalise` resamples the query to map scale (altimeter) and north-up (true heading), as the
 /// localiser does with a fused heading, after upsampling a coarse map as the localiser does
-/// ([`jointloc_absloc::localizer::map_upsample_factor`]).
+/// ([`jointloc_absloc::localizer::map_upsample_factor`]). The map is relit first as the
+/// localiser relights it (`relight`; [`jointloc_absloc::relight`]); the third value says why
+/// not when it was not.
 pub fn pairs_from_dataset(
     dir: &Path,
     n: usize,
     seed: u64,
     terrain: Option<&dyn TerrainHeights>,
     normalise: bool,
-) -> Result<(Vec<MatchPair>, GroundTruthSource)> {
+    relight: &RelightConfig,
+) -> Result<(Vec<MatchPair>, GroundTruthSource, Option<NotRelit>)> {
     let ds = UavDataset::open(dir)?;
     let mut tiles = MapTiles::open(dir)?;
     tiles.check_frame_size(ds.camera.width, ds.camera.height)?;
+    let not_relit = match relit_tiles(&tiles, relight)? {
+        Ok(relit) => {
+            tiles = relit;
+            None
+        }
+        Err(why) => Some(why),
+    };
     if normalise {
         // As the localiser: a map too coarse for the frames is upsampled first (at the first
         // frame's altitude), so pixel errors are in the upsampled map's pixels.
@@ -422,7 +433,7 @@ pub fn pairs_from_dataset(
             normalisation,
         });
     }
-    Ok((pairs, source))
+    Ok((pairs, source, not_relit))
 }
 
 /// Reads a pairs file (see the module docs).

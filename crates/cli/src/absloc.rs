@@ -57,6 +57,10 @@ pub struct Args {
     /// Tile features are not read from or written to the cache.
     #[arg(long)]
     no_cache: bool,
+    /// The sun during the flight, AZIMUTH,ELEVATION in degrees: the map is relit to it (see
+    /// `jointloc run --help`). Default: the config's, else a simulated dataset's record.
+    #[arg(long, value_name = "AZ,EL")]
+    flight_sun: Option<String>,
     /// Stop after this many localised frames.
     #[arg(long, value_name = "N")]
     limit: Option<usize>,
@@ -121,6 +125,11 @@ fn config_of(args: &Args) -> anyhow::Result<AbsLocConfig> {
     if args.no_cache {
         cfg.cache = false;
     }
+    crate::flight_sun::resolve(
+        args.flight_sun.as_deref(),
+        &mut cfg.relight.flight_sun,
+        &args.dataset,
+    )?;
     Ok(cfg)
 }
 

@@ -6,6 +6,7 @@ mod absloc;
 mod bench;
 mod demo;
 mod eval;
+mod flight_sun;
 mod map;
 mod matching;
 mod models;

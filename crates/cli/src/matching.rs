@@ -5,6 +5,7 @@ use std::path::PathBuf;
 
 use anyhow::{Context, bail};
 use jointloc_absloc::registry::{MATCHERS, RegistryOptions, resolve};
+use jointloc_absloc::relight::RelightConfig;
 use jointloc_bench::ground_truth::{GroundTruthSource, TerrainHeights};
 use jointloc_bench::match_bench::{
     BenchConfig, HomographyFit, MatchReport, THRESHOLDS_PX, pairs_from_dataset, read_pairs_file,
@@ -42,6 +43,10 @@ pub struct Args {
     /// terrain heightfield.
     #[arg(long)]
     flat_ground: bool,
+    /// Match against the map as it was taken, not relit to the flight's sun (the localiser's
+    /// `[absloc.relight] enabled = false`).
+    #[arg(long)]
+    no_relight: bool,
     /// Homography scored, comma separated to score several from the same matches (one table
     /// row each): `tight` (RANSAC at 3 px, refined on its inliers: the localiser's, and
     /// OpenCV's `findHomography` in the paper's protocol), `footprint` (then refitted over
@@ -111,13 +116,23 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         } else {
             jointloc_bench::sim_terrain::regenerate(dir, &ds)
         };
-        let (pairs, source) = pairs_from_dataset(
+        let mut relight = RelightConfig {
+            enabled: !args.no_relight,
+            ..RelightConfig::default()
+        };
+        crate::flight_sun::resolve(None, &mut relight.flight_sun, dir)?;
+        let (pairs, source, not_relit) = pairs_from_dataset(
             dir,
             args.pairs,
             args.seed,
             terrain.as_ref().map(|t| t as &dyn TerrainHeights),
             !args.native_scale,
+            &relight,
         )?;
+        match not_relit {
+            None => println!("map: relit to the flight's sun"),
+            Some(why) => println!("map: as taken ({why})"),
+        }
         (pairs, Some(source))
     };
     let asked = args.fit.clone().unwrap_or_else(|| {

@@ -62,6 +62,12 @@ pub struct Args {
     /// take-off within `start_radius_m` (5 m; `--config`) plus allowances of it.
     #[arg(long, value_name = "X,Y")]
     start: Option<String>,
+    /// The sun during the flight, AZIMUTH,ELEVATION in degrees (azimuth clockwise from
+    /// north): the map is relit to it with its elevation model when `map.toml` states the
+    /// map's `[sun]`. Default: `[absloc.relight] flight_sun` of `--config`, else a simulated
+    /// dataset's record.
+    #[arg(long, value_name = "AZ,EL")]
+    flight_sun: Option<String>,
     /// Settings (TOML, `JointLocConfig` with [slam] and [absloc] tables; fields left out keep
     /// their defaults); flags override it. A run's own `config.toml` repeats it.
     #[arg(long, value_name = "PATH")]

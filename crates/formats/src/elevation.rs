@@ -121,6 +121,11 @@ impl ElevationModel {
         fits.then_some(Self { info, heights })
     }
 
+    /// The heights, metres, one per post (row-major, rows run south).
+    pub fn heights(&self) -> &Grid<f32> {
+        &self.heights
+    }
+
     /// Bilinear height at world (x, y), clamped at the border of the grid.
     pub fn height_at(&self, x: f64, y: f64) -> f64 {
         let i = &self.info;

@@ -49,6 +49,11 @@ pub struct MapInfo {
     /// imported from GeoTIFF; absent: the map has only its local frame).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub crs: Option<MapCrs>,
+    /// The sun when the map was taken (a HiRISE label's sub-solar azimuth and incidence
+    /// angle give it): the localiser relights the map to the flight's sun with the elevation
+    /// model. Simulated maps record it as `[scene.satellite_sun]` instead.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub sun: Option<SunInfo>,
 }
 
 /// The CRS of an imported map. The world frame is the CRS translated: easting
@@ -233,9 +238,17 @@ impl MapInfo {
             elevation: None,
             scene: None,
             crs: None,
+            sun: None,
         };
         info.validate(Path::new("map.toml"))?;
         Ok(info)
+    }
+
+    /// The sun the map was taken under: `[sun]`, else a simulated map's
+    /// `[scene.satellite_sun]`.
+    pub fn acquisition_sun(&self) -> Option<SunInfo> {
+        self.sun
+            .or_else(|| self.scene.as_ref().map(|s| s.satellite_sun))
     }
 
     /// World `(x, y)` of map pixel `(u, v)`.
@@ -287,6 +300,17 @@ impl MapInfo {
         }
         if !(self.gsd_m.is_finite() && self.gsd_m > 0.0) {
             return Err(err(format!("gsd_m must be positive, got {}", self.gsd_m)));
+        }
+        if let Some(sun) = &self.sun
+            && !(sun.azimuth_deg.is_finite()
+                && sun.elevation_deg.is_finite()
+                && sun.elevation_deg > 0.0
+                && sun.elevation_deg <= 90.0)
+        {
+            return Err(err(format!(
+                "[sun] needs a finite azimuth_deg and an elevation_deg in (0, 90], got {} / {}",
+                sun.azimuth_deg, sun.elevation_deg
+            )));
         }
         if self.origin != "pixel-center" {
             return Err(err(format!(
@@ -448,6 +472,22 @@ mod tests {
             e.to_string().starts_with(&format!("map.toml:{line}:")),
             "{e}"
         );
+    }
+
+    #[test]
+    fn the_maps_sun_is_read_and_checked() {
+        let mut info = MapInfo::new(0.25, 1000, 750, 500, 500, 0.5).unwrap();
+        assert_eq!(info.acquisition_sun(), None);
+        info.sun = Some(SunInfo {
+            azimuth_deg: 348.5,
+            elevation_deg: 43.0,
+        });
+        let text = info.to_toml_string();
+        let back = MapInfo::parse(&text, Path::new("map.toml")).unwrap();
+        assert_eq!(back.acquisition_sun(), info.sun);
+        let below = text.replace("elevation_deg = 43.0", "elevation_deg = -3.0");
+        let e = MapInfo::parse(&below, Path::new("map.toml")).unwrap_err();
+        assert!(e.to_string().contains("[sun]"), "{e}");
     }
 
     #[test]

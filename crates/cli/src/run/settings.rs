@@ -44,6 +44,13 @@ pub(super) fn settings(args: &Args) -> anyhow::Result<JointLocConfig> {
             number_pair(p, ',').with_context(|| format!("--start {p}: expected X,Y in metres"))?;
         config.start_position = Some([x, y]);
     }
+    if let Some(dataset) = &args.dataset {
+        crate::flight_sun::resolve(
+            args.flight_sun.as_deref(),
+            &mut config.absloc.relight.flight_sun,
+            dataset,
+        )?;
+    }
     if let Some(speed) = args.realtime
         && !(speed.is_finite() && speed > 0.0)
     {
