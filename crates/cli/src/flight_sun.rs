@@ -8,16 +8,21 @@ use anyhow::{Context, bail};
 use jointloc_formats::MapInfo;
 use jointloc_formats::map_toml::SunInfo;
 
-/// `AZ,EL` in degrees: azimuth clockwise from north, elevation above the horizon.
+/// `--flight-sun AZ,EL` in degrees: azimuth clockwise from north, elevation above the horizon.
 pub fn parse(text: &str) -> anyhow::Result<SunInfo> {
+    parse_sun(text).with_context(|| format!("--flight-sun {text}"))
+}
+
+/// `AZ,EL` in degrees: azimuth clockwise from north, elevation in (0, 90].
+pub fn parse_sun(text: &str) -> anyhow::Result<SunInfo> {
     let parsed = text
         .split_once(',')
         .and_then(|(a, e)| Some((a.trim().parse::<f64>().ok()?, e.trim().parse::<f64>().ok()?)));
     let Some((azimuth_deg, elevation_deg)) = parsed else {
-        bail!("--flight-sun {text}: expected AZIMUTH,ELEVATION in degrees");
+        bail!("`{text}`: expected AZIMUTH,ELEVATION in degrees");
     };
     if !(azimuth_deg.is_finite() && elevation_deg > 0.0 && elevation_deg <= 90.0) {
-        bail!("--flight-sun {text}: the elevation must be in (0, 90] degrees");
+        bail!("`{text}`: the azimuth must be finite and the elevation in (0, 90] degrees");
     }
     Ok(SunInfo {
         azimuth_deg,

@@ -43,6 +43,12 @@ struct ImportArgs {
     /// Stated vertical precision of the DTM (1 σ), metres.
     #[arg(long, default_value_t = 0.25)]
     dem_sigma_m: f64,
+    /// The sun when the image was taken, AZIMUTH,ELEVATION in degrees (azimuth clockwise
+    /// from north, elevation above the horizon; for HiRISE, from the product's solar
+    /// geometry): written as `map.toml`'s `[sun]`, so that runs relight the map to the
+    /// flight's sun with the DTM.
+    #[arg(long, value_name = "AZ,EL")]
+    sun: Option<String>,
     /// Replace map files already in the folder (other files are kept).
     #[arg(long)]
     force: bool,
@@ -60,6 +66,11 @@ fn import(a: ImportArgs) -> anyhow::Result<()> {
         tile_height_px: a.tile_height,
         tile_overlap: a.overlap,
         dem_sigma_m: a.dem_sigma_m,
+        sun: a
+            .sun
+            .as_deref()
+            .map(|t| crate::flight_sun::parse_sun(t).with_context(|| format!("--sun {t}")))
+            .transpose()?,
     };
     let clock = Instant::now();
     let report = import_map(&a.image, a.dem.as_deref(), &a.out, &cfg, a.force)

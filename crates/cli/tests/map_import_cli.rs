@@ -88,9 +88,25 @@ fn geotiffs_written_by_gdal_import_exactly() {
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     assert!(String::from_utf8_lossy(&o.stdout).contains("EPSG:32633"));
     assert!(String::from_utf8_lossy(&o.stderr).contains("nodata posts"));
-    let o = import(&d.join("mars16.tif"), None, &d.join("mars"), &[]);
+    let o = import(
+        &d.join("mars16.tif"),
+        None,
+        &d.join("mars"),
+        &["--sun", "10,-5"],
+    );
+    assert!(!o.status.success());
+    assert!(String::from_utf8_lossy(&o.stderr).contains("--sun 10,-5"));
+    let o = import(
+        &d.join("mars16.tif"),
+        None,
+        &d.join("mars"),
+        &["--sun", "348.5,43"],
+    );
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     script(&["check", s(d)]);
+    let mars = jointloc_formats::MapInfo::read(&d.join("mars/map.toml")).unwrap();
+    let sun = mars.sun.expect("[sun] written");
+    assert_eq!((sun.azimuth_deg, sun.elevation_deg), (348.5, 43.0));
 
     // The map jointloc reads back.
     let map = jointloc_formats::MapInfo::read(&d.join("utm/map.toml")).unwrap();

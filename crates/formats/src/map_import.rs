@@ -19,7 +19,7 @@ use crate::elevation::{ElevationInfo, quantise_heights, write_elevation_png, wri
 use crate::error::{FormatError, Result};
 use crate::geotiff::{GeoRaster, Samples, read_geotiff};
 use crate::grid::Grid;
-use crate::map_toml::{MapCrs, MapInfo};
+use crate::map_toml::{MapCrs, MapInfo, SunInfo};
 
 /// Settings of the import.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -33,6 +33,9 @@ pub struct MapImportConfig {
     /// Stated vertical precision of the DTM (1 σ), metres: the weight of the ground
     /// constraints (HiRISE DTMs: a few decimetres).
     pub dem_sigma_m: f64,
+    /// The sun when the image was taken, written as `map.toml`'s `[sun]`: with the DTM, the
+    /// localiser relights the map to the flight's sun.
+    pub sun: Option<SunInfo>,
 }
 
 impl Default for MapImportConfig {
@@ -42,6 +45,7 @@ impl Default for MapImportConfig {
             tile_height_px: 500,
             tile_overlap: 0.5,
             dem_sigma_m: 0.25,
+            sun: None,
         }
     }
 }
@@ -100,6 +104,7 @@ pub fn import_map(
         cfg.tile_height_px,
         cfg.tile_overlap,
     )?;
+    map.sun = cfg.sun;
     map.crs = Some(MapCrs {
         epsg: ortho.crs.epsg,
         citation: ortho.crs.citation.clone(),
