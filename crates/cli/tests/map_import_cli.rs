@@ -195,11 +195,20 @@ fn a_flight_over_a_map_that_went_through_geotiff_flies_the_same_and_speaks_map_c
     let (e0, n0) = (4_590_960.0, 1_093_031.0); // Jezero crater in Mars equirectangular metres
     let (e0_s, n0_s) = (e0.to_string(), n0.to_string());
     script(&["togeotiff", s(&data), s(d), &e0_s, &n0_s]);
+    // The simulated map's suns, which a user gives as the map's `--sun` at import and the
+    // flight's `--flight-sun` in runs: the map is relit the same either way.
+    let scene = jointloc_formats::MapInfo::read(&data.join("map.toml"))
+        .unwrap()
+        .scene
+        .expect("a simulated map records its suns");
+    let sun =
+        |s: jointloc_formats::map_toml::SunInfo| format!("{},{}", s.azimuth_deg, s.elevation_deg);
+    let (map_sun, flight_sun) = (sun(scene.satellite_sun), sun(scene.uav_sun));
     let o = import(
         &d.join("satellite.tif"),
         Some(&d.join("elevation.tif")),
         &imported,
-        &["--dem-sigma-m", "0.05"],
+        &["--dem-sigma-m", "0.05", "--sun", &map_sun],
     );
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
 
@@ -217,6 +226,7 @@ fn a_flight_over_a_map_that_went_through_geotiff_flies_the_same_and_speaks_map_c
                     a
                 }
             })
+            .chain(["--flight-sun", flight_sun.as_str()])
             .chain(extra.iter().copied())
             .collect();
         let o = jointloc(&args);
