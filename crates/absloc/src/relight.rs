@@ -91,11 +91,7 @@ impl RelightConfig {
 
 /// Errors unless `sun` has a finite azimuth and an elevation in (0, 90].
 pub fn check_sun(field: &'static str, sun: &SunInfo) -> Result<()> {
-    if !(sun.azimuth_deg.is_finite()
-        && sun.elevation_deg.is_finite()
-        && sun.elevation_deg > 0.0
-        && sun.elevation_deg <= 90.0)
-    {
+    if !sun.is_valid() {
         return Err(AbslocError::InvalidConfig {
             field,
             value: format!("{} / {}", sun.azimuth_deg, sun.elevation_deg),

@@ -21,13 +21,14 @@ pub fn parse_sun(text: &str) -> anyhow::Result<SunInfo> {
     let Some((azimuth_deg, elevation_deg)) = parsed else {
         bail!("`{text}`: expected AZIMUTH,ELEVATION in degrees");
     };
-    if !(azimuth_deg.is_finite() && elevation_deg > 0.0 && elevation_deg <= 90.0) {
-        bail!("`{text}`: the azimuth must be finite and the elevation in (0, 90] degrees");
-    }
-    Ok(SunInfo {
+    let sun = SunInfo {
         azimuth_deg,
         elevation_deg,
-    })
+    };
+    if !sun.is_valid() {
+        bail!("`{text}`: the azimuth must be finite and the elevation in (0, 90] degrees");
+    }
+    Ok(sun)
 }
 
 /// Sets `configured` from `flag`, or, when both are absent, from the dataset's record.

@@ -132,6 +132,13 @@ pub struct SunInfo {
     pub elevation_deg: f64,
 }
 
+impl SunInfo {
+    /// A finite azimuth and an elevation in (0, 90] degrees: a sun that lights the terrain.
+    pub fn is_valid(&self) -> bool {
+        self.azimuth_deg.is_finite() && self.elevation_deg > 0.0 && self.elevation_deg <= 90.0
+    }
+}
+
 /// One tile: a window of the map.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Tile {
@@ -302,10 +309,7 @@ impl MapInfo {
             return Err(err(format!("gsd_m must be positive, got {}", self.gsd_m)));
         }
         if let Some(sun) = &self.sun
-            && !(sun.azimuth_deg.is_finite()
-                && sun.elevation_deg.is_finite()
-                && sun.elevation_deg > 0.0
-                && sun.elevation_deg <= 90.0)
+            && !sun.is_valid()
         {
             return Err(err(format!(
                 "[sun] needs a finite azimuth_deg and an elevation_deg in (0, 90], got {} / {}",
